@@ -1,0 +1,50 @@
+"""`acl3d` command line: one module per subcommand, each with `add_arguments(parser)` and `run(args)`."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# subcommand -> (module, one-line help). Modules are imported only when their command runs.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("acl3d.cli.train", "train a student with a teacher's curriculum on a track"),
+    "evaluate": ("acl3d.cli.evaluate", "evaluate a trained policy on a test set"),
+    "report": ("acl3d.cli.report", "write plots and a video for a run directory"),
+    "render": ("acl3d.cli.render", "render rollouts of a track to mp4/gif"),
+    "toy": ("acl3d.cli.toy", "run a teacher on teachDeepRL's toy environment"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="acl3d", description="Automatic curriculum learning on 3D MuJoCo tracks.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        try:
+            importlib.import_module(module).add_arguments(p)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
+            p.set_defaults(_missing=True)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    if getattr(args, "_missing", False):
+        parser.error(f"command {args.command!r} is not available in this build")
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except ValueError as exc:  # bad user input: one clear line, no traceback
+        print(f"acl3d {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

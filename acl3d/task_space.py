@@ -1,0 +1,204 @@
+"""Task spaces: the named, bounded parameter vectors that teachers sample and environments build.
+
+One object serves both sides so a curriculum, a test set and an environment always agree on the
+order, units and bounds of the task dimensions (TeachMyAgent's `param_env_bounds`, made explicit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TaskParameter:
+    """One named parameter of a task: `dims` values sharing (or not) the same bounds."""
+
+    name: str
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    unit: str = ""
+    doc: str = ""
+    default: tuple[float, ...] | None = None
+
+    @property
+    def dims(self) -> int:
+        return len(self.low)
+
+
+def _as_tuple(value, dims: int, what: str) -> tuple[float, ...]:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.size == 1 and dims > 1:
+        arr = np.repeat(arr, dims)
+    if arr.size != dims:
+        raise ValueError(f"{what}: expected {dims} value(s), got {arr.size}")
+    return tuple(float(v) for v in arr)
+
+
+@dataclass(frozen=True)
+class TaskSpace:
+    """An ordered list of task parameters with dict <-> flat-vector conversion.
+
+    `low`/`high` are the benchmark bounds a teacher samples in; environments accept buildable
+    values outside them (curricula explore beyond bounds).
+    """
+
+    parameters: tuple[TaskParameter, ...]
+    _offsets: dict = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        offsets, start = {}, 0
+        for p in self.parameters:
+            if p.name in offsets:
+                raise ValueError(f"duplicate task parameter name {p.name!r}")
+            lo, hi = np.asarray(p.low), np.asarray(p.high)
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                raise ValueError(f"task parameter {p.name!r}: bounds must be finite, got {p.low}..{p.high}")
+            if np.any(lo > hi):
+                raise ValueError(f"task parameter {p.name!r}: min > max in bounds {p.low}..{p.high}")
+            offsets[p.name] = (start, start + p.dims)
+            start += p.dims
+        object.__setattr__(self, "_offsets", offsets)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_bounds(cls, bounds: Mapping[str, Sequence]) -> TaskSpace:
+        """Build from TeachMyAgent bounds: `{name: [min, max]}`, `[min, max, n]` or `[[min, max], ...]`."""
+        params = []
+        for name, b in bounds.items():
+            b = list(b) if not isinstance(b, np.ndarray) else b.tolist()
+            if len(b) > 0 and isinstance(b[0], (list, tuple, np.ndarray)):
+                pairs = np.asarray(b, dtype=np.float64)
+                if pairs.ndim != 2 or pairs.shape[1] != 2:
+                    raise ValueError(f"bounds for {name!r}: expected a list of [min, max] pairs, got {b}")
+                low, high = tuple(pairs[:, 0]), tuple(pairs[:, 1])
+            elif len(b) == 2:
+                low, high = (float(b[0]),), (float(b[1]),)
+            elif len(b) == 3:
+                n = int(b[2])
+                if n < 1 or n != b[2]:
+                    raise ValueError(f"bounds for {name!r}: dimension count must be a positive integer, got {b[2]}")
+                low, high = (float(b[0]),) * n, (float(b[1]),) * n
+            else:
+                raise ValueError(f"bounds for {name!r}: expected [min, max], [min, max, n] or [[min, max], ...], got {b}")
+            params.append(TaskParameter(name, tuple(map(float, low)), tuple(map(float, high))))
+        return cls(tuple(params))
+
+    @classmethod
+    def coerce(cls, space) -> TaskSpace:
+        """Accept a TaskSpace or a TeachMyAgent bounds dict."""
+        if isinstance(space, TaskSpace):
+            return space
+        if isinstance(space, Mapping):
+            return cls.from_bounds(space)
+        raise TypeError(f"expected a TaskSpace or a bounds dict {{name: [min, max]}}, got {type(space).__name__}")
+
+    def with_bounds(self, **bounds) -> TaskSpace:
+        """A copy whose named parameters get new bounds, e.g. `with_bounds(stump_height=(0, 9))`."""
+        params = []
+        unknown = set(bounds) - set(self.names)
+        if unknown:
+            raise ValueError(f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}")
+        for p in self.parameters:
+            if p.name in bounds:
+                lo, hi = bounds[p.name]
+                p = TaskParameter(p.name, _as_tuple(lo, p.dims, p.name), _as_tuple(hi, p.dims, p.name), p.unit, p.doc, p.default)
+            params.append(p)
+        return TaskSpace(tuple(params))
+
+    def subset(self, names: Sequence[str]) -> TaskSpace:
+        """The space restricted to `names` (in that order)."""
+        by_name = {p.name: p for p in self.parameters}
+        unknown = [n for n in names if n not in by_name]
+        if unknown:
+            raise ValueError(f"unknown task parameter(s) {unknown}; valid: {list(self.names)}")
+        return TaskSpace(tuple(by_name[n] for n in names))
+
+    # ------------------------------------------------------------------ description
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def dim(self) -> int:
+        return sum(p.dims for p in self.parameters)
+
+    @property
+    def low(self) -> np.ndarray:
+        return np.concatenate([p.low for p in self.parameters]).astype(np.float64)
+
+    @property
+    def high(self) -> np.ndarray:
+        return np.concatenate([p.high for p in self.parameters]).astype(np.float64)
+
+    def bounds_dict(self) -> dict[str, list]:
+        """TeachMyAgent-style bounds (a list of [min, max] pairs per parameter)."""
+        return {p.name: [[lo, hi] for lo, hi in zip(p.low, p.high)] if p.dims > 1 else [p.low[0], p.high[0]] for p in self.parameters}
+
+    def describe(self) -> str:
+        lines = []
+        for p in self.parameters:
+            rng = f"[{p.low[0]:g}, {p.high[0]:g}]" if len(set(p.low)) == 1 and len(set(p.high)) == 1 else f"{list(p.low)}..{list(p.high)}"
+            lines.append(f"{p.name} ({p.dims}d{', ' + p.unit if p.unit else ''}): {rng}  {p.doc}".rstrip())
+        return "\n".join(lines)
+
+    def slice(self, name: str) -> slice:
+        start, stop = self._offsets[name]
+        return slice(start, stop)
+
+    # ------------------------------------------------------------------ conversion
+    def to_dict(self, vector) -> dict[str, float | np.ndarray]:
+        """Flat vector -> {name: float (1-d parameter) or array}."""
+        vec = self.validate_vector(vector)
+        out = {}
+        for p in self.parameters:
+            v = vec[self.slice(p.name)]
+            out[p.name] = float(v[0]) if p.dims == 1 else v.copy()
+        return out
+
+    def to_vector(self, task: Mapping, fill_defaults: bool = True) -> np.ndarray:
+        """{name: value} -> flat float64 vector; missing names take their default (or fail)."""
+        unknown = set(task) - set(self.names)
+        if unknown:
+            raise ValueError(f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}")
+        parts = []
+        for p in self.parameters:
+            if p.name in task:
+                value = task[p.name]
+            elif fill_defaults and p.default is not None:
+                value = p.default
+            else:
+                raise ValueError(f"task parameter {p.name!r} missing and it has no default")
+            arr = np.asarray(value, dtype=np.float64).reshape(-1)
+            if arr.size != p.dims:
+                raise ValueError(f"task parameter {p.name!r}: expected {p.dims} value(s), got {arr.size} ({value!r})")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"task parameter {p.name!r}: value {value!r} is not finite")
+            parts.append(arr)
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def validate_vector(self, vector) -> np.ndarray:
+        """Check shape and finiteness of a flat task vector; return it as float64."""
+        vec = np.asarray(vector, dtype=np.float64)
+        if vec.ndim != 1 or vec.shape[0] != self.dim:
+            raise ValueError(f"task vector: expected shape ({self.dim},) for parameters {list(self.names)}, got {vec.shape}")
+        if not np.all(np.isfinite(vec)):
+            bad = [self._name_of(i) for i in np.flatnonzero(~np.isfinite(vec))]
+            raise ValueError(f"task vector: non-finite value(s) for {bad}: {vec}")
+        return vec
+
+    def contains(self, vector) -> bool:
+        vec = self.validate_vector(vector)
+        return bool(np.all(vec >= self.low) and np.all(vec <= self.high))
+
+    def _name_of(self, index: int) -> str:
+        for name, (a, b) in self._offsets.items():
+            if a <= index < b:
+                return name if b - a == 1 else f"{name}[{index - a}]"
+        raise IndexError(index)
+
+    def flat_names(self) -> list[str]:
+        """One label per flat dimension (`name` or `name[i]`), for plots and CSV headers."""
+        return [self._name_of(i) for i in range(self.dim)]

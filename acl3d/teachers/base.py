@@ -1,0 +1,230 @@
+"""The teacher interface shared by every curriculum algorithm (TeachMyAgent's AbstractTeacher).
+
+A teacher proposes tasks (flat float32 vectors in task-space units) and learns from the outcome
+of the episodes played on them. Every random draw comes from the teacher's own seeded generator,
+and `state_dict()` captures everything needed to resume exactly. Input checks run before any
+state changes, so a bad call never corrupts what the teacher learned.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from abc import ABC, abstractmethod
+from collections import defaultdict
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from acl3d.task_space import TaskSpace
+
+ValueEstimator = Callable[[np.ndarray], np.ndarray | None]
+
+
+def _no_value(states: np.ndarray) -> None:
+    return None
+
+
+class Teacher(ABC):
+    """Base class of all teachers.
+
+    Subclasses implement `_sample()` and optionally `_episodic_update`, `_step_update`,
+    `_record_initial_state`, `_non_exploratory_sample`, `_extra_state` / `_load_extra_state`.
+
+    Class attributes:
+      name: registry name (`acl3d.teachers.make(name, ...)`).
+      needs: what the teacher consumes beyond episodic returns, among
+        {"success", "step_rewards", "initial_states", "value_estimator"}; the training loop uses it
+        to wire the right data and to refuse incompatible students early.
+    """
+
+    name: ClassVar[str] = "abstract"
+    needs: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, task_space, seed: int | None = None):
+        self.task_space = TaskSpace.coerce(task_space)
+        self.mins = self.task_space.low
+        self.maxs = self.task_space.high
+        self.dim = self.task_space.dim
+        if seed is None:
+            seed = int(np.random.SeedSequence().entropy % (2**31))
+        if not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(self.seed)
+        self.value_estimator: ValueEstimator = _no_value
+        self.bk: dict[str, list] = defaultdict(list)
+        self.nb_episodes = 0
+
+    # ------------------------------------------------------------------ public API
+    def sample_task(self) -> np.ndarray:
+        """Propose the next task (float32 vector of length `dim`)."""
+        task = np.asarray(self._sample(), dtype=np.float32).reshape(self.dim)
+        return task
+
+    def episodic_update(self, task, reward: float, is_success: bool = False) -> None:
+        """Learn from one finished episode played on `task` with return `reward`."""
+        task = self._check_task(task)
+        reward = self._check_scalar("reward", reward)
+        self._episodic_update(task, reward, bool(is_success))
+        self.nb_episodes += 1
+
+    def step_update(self, state, action, reward, next_state, done) -> None:
+        """Per-step hook (only teachers with "step_rewards" in `needs` use it)."""
+        if "step_rewards" in self.needs:
+            self._check_scalar("reward", reward)
+            self._step_update(state, action, float(reward), next_state, bool(done))
+
+    def record_initial_state(self, task, state) -> None:
+        """First observation of the episode that runs `task` (only SPDL uses it)."""
+        if "initial_states" in self.needs:
+            task = self._check_task(task)
+            self._record_initial_state(task, np.asarray(state, dtype=np.float32))
+
+    def set_value_estimator(self, fn: ValueEstimator) -> None:
+        """Give the teacher the student's value function: batch of states -> values."""
+        self.value_estimator = fn
+
+    def non_exploratory_task_sampling(self) -> dict[str, Any]:
+        """A task from the teacher's current distribution without exploration noise (for plots)."""
+        task = np.asarray(self._non_exploratory_sample(), dtype=np.float32).reshape(self.dim)
+        return {"task": task, "infos": {"bk_index": len(self.bk.get("episodes", [])), "task_infos": None}}
+
+    def is_non_exploratory_task_sampling_available(self) -> bool:
+        return True
+
+    def dump(self) -> dict[str, list]:
+        """The teacher's book-keeping (merged into the run's teacher dump)."""
+        return dict(self.bk)
+
+    # ------------------------------------------------------------------ checkpointing
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume exactly; values are JSON scalars/lists/dicts or numpy arrays."""
+        return {
+            "name": self.name,
+            "seed": self.seed,
+            "rng": self.rng.bit_generator.state,
+            "nb_episodes": self.nb_episodes,
+            "bk": {k: list(v) for k, v in self.bk.items()},
+            "extra": self._extra_state(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state.get("name") != self.name:
+            raise ValueError(f"state_dict is for teacher {state.get('name')!r}, not {self.name!r}")
+        self.seed = int(state["seed"])
+        self.rng.bit_generator.state = state["rng"]
+        self.nb_episodes = int(state["nb_episodes"])
+        self.bk = defaultdict(list, {k: list(v) for k, v in state["bk"].items()})
+        self._load_extra_state(state["extra"])
+
+    def save(self, path) -> None:
+        """Write `state_dict()` as PATH.json + PATH.npz (open formats, no pickle)."""
+        save_state(path, self.state_dict())
+
+    def load(self, path) -> None:
+        self.load_state_dict(load_state(path))
+
+    # ------------------------------------------------------------------ for subclasses
+    @abstractmethod
+    def _sample(self) -> np.ndarray: ...
+
+    def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
+        pass
+
+    def _step_update(self, state, action, reward: float, next_state, done: bool) -> None:
+        pass
+
+    def _record_initial_state(self, task: np.ndarray, state: np.ndarray) -> None:
+        pass
+
+    def _non_exploratory_sample(self) -> np.ndarray:
+        return self._sample()
+
+    def _extra_state(self) -> dict[str, Any]:
+        return {}
+
+    def _load_extra_state(self, extra: dict[str, Any]) -> None:
+        pass
+
+    # ------------------------------------------------------------------ helpers
+    def uniform_task(self) -> np.ndarray:
+        """A uniform draw in the bounds (degenerate dimensions give their single value)."""
+        return self.rng.uniform(self.mins, self.maxs)
+
+    def clip(self, task) -> np.ndarray:
+        return np.clip(task, self.mins, self.maxs)
+
+    def rescale(self, unit_task) -> np.ndarray:
+        """[0, 1]^d -> task space."""
+        return self.mins + np.asarray(unit_task) * (self.maxs - self.mins)
+
+    def normalise(self, task) -> np.ndarray:
+        """Task space -> [0, 1]^d (degenerate dimensions map to 0)."""
+        span = self.maxs - self.mins
+        return np.divide(np.asarray(task) - self.mins, span, out=np.zeros(self.dim), where=span > 0)
+
+    def _check_task(self, task) -> np.ndarray:
+        arr = np.asarray(task, dtype=np.float64)
+        if arr.shape != (self.dim,):
+            raise ValueError(f"task: expected shape ({self.dim},) for {list(self.task_space.names)}, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"task: non-finite values {arr}")
+        return arr
+
+    @staticmethod
+    def _check_scalar(what: str, value) -> float:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what}: expected a finite number, got {value!r}") from None
+        if not math.isfinite(v):
+            raise ValueError(f"{what}: expected a finite number, got {value!r}")
+        return v
+
+
+# ---------------------------------------------------------------------- open-format state files
+def _split_arrays(obj, arrays: dict, prefix: str):
+    if isinstance(obj, dict):
+        return {str(k): _split_arrays(v, arrays, f"{prefix}/{k}") for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_split_arrays(v, arrays, f"{prefix}/{i}") for i, v in enumerate(obj)]
+    if hasattr(obj, "detach") and hasattr(obj, "cpu"):  # torch tensor
+        obj = obj.detach().cpu().numpy()
+    if isinstance(obj, np.ndarray):
+        key = f"a{len(arrays)}"
+        arrays[key] = obj
+        return {"__array__": key}
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def _join_arrays(obj, arrays):
+    if isinstance(obj, dict):
+        if set(obj) == {"__array__"}:
+            return arrays[obj["__array__"]]
+        return {k: _join_arrays(v, arrays) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_join_arrays(v, arrays) for v in obj]
+    return obj
+
+
+def save_state(path, state: dict) -> None:
+    """Save a nested dict of JSON values and arrays as PATH.json + PATH.npz."""
+    path = Path(path)
+    arrays: dict[str, np.ndarray] = {}
+    tree = _split_arrays(state, arrays, "")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path.with_suffix(".npz"), **arrays)
+    path.with_suffix(".json").write_text(json.dumps(tree))
+
+
+def load_state(path) -> dict:
+    path = Path(path)
+    tree = json.loads(path.with_suffix(".json").read_text())
+    with np.load(path.with_suffix(".npz"), allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    return _join_arrays(tree, arrays)
