@@ -1,0 +1,228 @@
+"""Curriculum sync between a teacher in the main process and environments in worker processes.
+
+SB3 vector envs reset finished episodes inside `step()` with no options, so a task pushed after
+the fact would arrive one episode late. Instead each worker env *pulls* its next task at reset
+from a small queue that the main process keeps filled (Syllabus' pattern):
+
+* `CurriculumEnv` (worker side) plays the task at the head of its queue at every reset that
+  does not name a task itself, and reports the finished episode (task actually played, return,
+  length, success, initial observation, truncation) in the last step's `info["curriculum"]`.
+* `CurriculumVecEnv` (main side) pushes one prefetched task per worker before the first reset
+  and one more right after each finished episode, before the next `step_async`, so the step loop
+  never waits for the teacher; it hands every finished episode to the teacher exactly once.
+
+With one task of prefetch, the teacher learns the outcome of a worker's episode k before it
+samples that worker's task k + 2. Errors raised inside a worker env are caught and carried back
+with their traceback, so a crash stops training with a readable message on both vec env types.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections import deque
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+
+INFO_KEY = "curriculum"
+ERROR_KEY = "acl3d_worker_error"
+SUCCESS_THRESHOLD = 230.0
+
+
+class WorkerError(RuntimeError):
+    """An environment raised inside a worker; the message carries the worker's traceback."""
+
+
+@dataclass
+class Episode:
+    """One finished training episode as the teacher received it."""
+
+    worker: int
+    task: np.ndarray
+    episode_return: float
+    length: int
+    success: bool
+    truncated: bool
+    initial_obs: np.ndarray
+    total_steps: int
+
+
+class CurriculumEnv(gym.Wrapper):
+    """Worker-side wrapper: pulls queued tasks at reset, reports episode outcomes in `info`.
+
+    A reset whose `options` already hold a `"task"` (evaluation, rendering) plays that task and
+    leaves the queue alone; any other reset needs a queued task and fails loudly without one, so a
+    curriculum can never silently run an environment's default task.
+    """
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self._queue: deque[np.ndarray] = deque()
+        self._task: np.ndarray | None = None
+        self._return = 0.0
+        self._length = 0
+        self._initial_obs = None
+        self._last_obs = None
+        self._start_time = 0.0
+        self._error: str | None = None
+
+    def push_task(self, task) -> int:
+        """Queue a task (flat vector in task-space order); returns the queue length."""
+        self._queue.append(np.array(task, dtype=np.float32).reshape(-1))
+        return len(self._queue)
+
+    def queued_tasks(self) -> int:
+        return len(self._queue)
+
+    def reset(self, *, seed=None, options=None):
+        if self._error is not None:  # stay inert after a crash: the main side stops the run
+            return self._placeholder_obs(), {ERROR_KEY: self._error}
+        try:
+            options = dict(options or {})
+            if "task" not in options:
+                if not self._queue:
+                    raise RuntimeError(
+                        "CurriculumEnv.reset: no task queued; the main process must push_task() "
+                        "before every reset that does not pass options={'task': ...}"
+                    )
+                options["task"] = self._queue.popleft()
+            task = options["task"]
+            obs, info = self.env.reset(seed=seed, options=options)
+        except Exception:
+            self._error = traceback.format_exc()
+            return self._placeholder_obs(), {ERROR_KEY: self._error}
+        self._task = task
+        self._return, self._length = 0.0, 0
+        self._initial_obs = np.array(obs, copy=True)
+        self._last_obs = self._initial_obs
+        self._start_time = time.perf_counter()
+        return obs, info
+
+    def step(self, action):
+        if self._error is not None:
+            return self._placeholder_obs(), 0.0, True, False, {ERROR_KEY: self._error}
+        try:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+        except Exception:
+            self._error = traceback.format_exc()
+            return self._placeholder_obs(), 0.0, True, False, {ERROR_KEY: self._error}
+        self._return += float(reward)
+        self._length += 1
+        self._last_obs = obs
+        if terminated or truncated:
+            success = bool(info.get("success", self._return > SUCCESS_THRESHOLD))
+            task = self._task
+            info[INFO_KEY] = {
+                "task": task if isinstance(task, dict) else np.asarray(task, dtype=np.float32),
+                "return": self._return,
+                "length": self._length,
+                "success": success,
+                "truncated": bool(truncated and not terminated),
+                "initial_obs": self._initial_obs,
+            }
+            # SB3 reads this key (as Monitor writes it) for rollout/ep_rew_mean.
+            elapsed = time.perf_counter() - self._start_time
+            info["episode"] = {"r": self._return, "l": self._length, "t": round(elapsed, 6)}
+        return obs, reward, terminated, truncated, info
+
+    def _placeholder_obs(self):
+        if self._last_obs is not None:
+            return self._last_obs
+        return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
+
+
+def raise_worker_errors(infos, where: str) -> None:
+    for i, info in enumerate(infos):
+        if info and ERROR_KEY in info:
+            raise WorkerError(f"environment worker {i} crashed during {where}:\n{info[ERROR_KEY]}")
+
+
+class CurriculumVecEnv(VecEnvWrapper):
+    """Main-side wrapper: keeps every worker's task queue one task ahead and feeds the teacher.
+
+    `controller` is an `acl3d.teachers.controller.TeacherController` (anything with
+    `sample_task`, `record_episode`, `needs` and optionally `record_step` /
+    `maybe_sample_periodically`). It must sit directly on the worker `VecEnv` (below any
+    VecNormalize) so that it sees raw observations and rewards.
+    """
+
+    def __init__(self, venv: VecEnv, controller, total_steps: int = 0):
+        super().__init__(venv)
+        self.controller = controller
+        self.total_steps = int(total_steps)
+        self.episodes_done = 0
+        self._pending = np.zeros(self.num_envs, dtype=np.int64)
+        self._finished: list[Episode] = []
+        self._last_obs = None
+        self._actions = None
+        needs = set(getattr(controller, "needs", ()))
+        self._record_steps = "step_rewards" in needs
+
+    # -------------------------------------------------------------- queue management
+    def _push(self, index: int) -> None:
+        task = np.asarray(self.controller.sample_task(), dtype=np.float32)
+        self.venv.env_method("push_task", task, indices=[index])
+        self._pending[index] += 1
+
+    def reset(self):
+        for i in range(self.num_envs):
+            if self._pending[i] == 0:
+                self._push(i)
+        obs = self.venv.reset()
+        raise_worker_errors(getattr(self.venv, "reset_infos", []), "reset")
+        self._pending -= 1  # every worker consumed one queued task
+        for i in range(self.num_envs):
+            self._push(i)
+        self._last_obs = obs
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+        self.venv.step_async(actions)
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        raise_worker_errors(infos, "step")
+        self.total_steps += self.num_envs
+        if self._record_steps:
+            for i in range(self.num_envs):
+                next_obs = infos[i]["terminal_observation"] if dones[i] else obs[i]
+                self.controller.record_step(
+                    self._last_obs[i], self._actions[i], float(rewards[i]), next_obs, bool(dones[i])
+                )
+        for i in np.flatnonzero(dones):
+            self._pending[i] -= 1  # the auto-reset consumed the prefetched task
+            self._report(int(i), infos[i])
+            self._push(int(i))
+        maybe_sample = getattr(self.controller, "maybe_sample_periodically", None)
+        if maybe_sample is not None:
+            maybe_sample(self.total_steps)
+        self._last_obs = obs
+        return obs, rewards, dones, infos
+
+    def _report(self, worker: int, info: dict) -> None:
+        ep = info[INFO_KEY]
+        self.controller.record_episode(
+            ep["task"], ep["return"], ep["length"], ep["success"], initial_obs=ep["initial_obs"]
+        )
+        self.episodes_done += 1
+        self._finished.append(
+            Episode(
+                worker=worker,
+                task=np.asarray(ep["task"], dtype=np.float32),
+                episode_return=float(ep["return"]),
+                length=int(ep["length"]),
+                success=bool(ep["success"]),
+                truncated=bool(ep["truncated"]),
+                initial_obs=ep["initial_obs"],
+                total_steps=self.total_steps,
+            )
+        )
+
+    def pop_finished(self) -> list[Episode]:
+        """Episodes finished since the last call (for logging), oldest first."""
+        out, self._finished = self._finished, []
+        return out

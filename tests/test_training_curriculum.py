@@ -1,0 +1,163 @@
+"""Curriculum sync: every episode plays a teacher task, every outcome reaches the teacher once."""
+
+from __future__ import annotations
+
+import functools
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.wrappers import TimeLimit
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+from acl3d.training.curriculum import CurriculumEnv, CurriculumVecEnv, WorkerError
+
+MAX_STEPS = 9
+
+
+def episode_length(task) -> int:
+    """Deterministic length of the stand-in env's episode; > MAX_STEPS means truncated."""
+    return 1 + (int(round(float(task[0]))) * 7) % 13
+
+
+class CountingEnv(gym.Env):
+    """Stand-in track: the task fixes the episode length and the per-step reward (task[1])."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def __init__(self, crash_at_task: int | None = None):
+        self.crash_at_task = crash_at_task
+        self.task = None
+        self.t = 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.task = np.asarray(options["task"], dtype=np.float64)
+        if self.crash_at_task is not None and round(self.task[0]) == self.crash_at_task:
+            raise FloatingPointError("stand-in env exploded on purpose")
+        self.t = 0
+        return self._obs(), {}
+
+    def _obs(self):
+        return np.array([self.task[0], self.task[1], self.t], dtype=np.float32)
+
+    def step(self, action):
+        self.t += 1
+        terminated = self.t >= episode_length(self.task)
+        return self._obs(), float(self.task[1]), terminated, False, {"success": self.t % 2 == 0}
+
+
+def make_counting_env(crash_at_task=None):
+    return CurriculumEnv(TimeLimit(CountingEnv(crash_at_task), max_episode_steps=MAX_STEPS))
+
+
+class RecordingController:
+    """Stand-in TeacherController: numbered tasks, remembers what it sampled and was told."""
+
+    def __init__(self, needs=()):
+        self.needs = set(needs)
+        self.sampled: list[np.ndarray] = []
+        self.recorded: list[tuple] = []
+        self.steps = 0
+        self.rng = np.random.default_rng(0)
+
+    def sample_task(self):
+        task = np.array([len(self.sampled), self.rng.uniform(-1, 1)], dtype=np.float32)
+        self.sampled.append(task)
+        return task
+
+    def record_episode(self, task, episode_return, length, success, initial_obs=None):
+        self.recorded.append((np.asarray(task), episode_return, length, success, initial_obs))
+
+    def record_step(self, state, action, reward, next_state, done):
+        self.steps += 1
+
+
+def run_random_steps(venv, n_steps: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    venv.reset()
+    infos_seen = []
+    for _ in range(n_steps):
+        _, _, dones, infos = venv.step(rng.uniform(-1, 1, (venv.num_envs, 1)).astype(np.float32))
+        infos_seen.append((dones, infos))
+    return infos_seen
+
+
+def vec_env(kind: str, n_envs: int, crash_at_task=None):
+    fns = [functools.partial(make_counting_env, crash_at_task) for _ in range(n_envs)]
+    if kind == "dummy":
+        return DummyVecEnv(fns)
+    return SubprocVecEnv(fns, start_method=kind)
+
+
+@pytest.mark.parametrize("kind", ["dummy", "forkserver", "spawn"])
+def test_every_episode_plays_a_sampled_task_and_reports_once(kind):
+    n_envs, n_steps = 3, 60
+    controller = RecordingController(needs={"step_rewards"})
+    venv = CurriculumVecEnv(vec_env(kind, n_envs), controller)
+    try:
+        history = run_random_steps(venv, n_steps)
+    finally:
+        venv.close()
+    finished = sum(int(d.sum()) for d, _ in history)
+    assert finished == len(controller.recorded) == venv.episodes_done > 0
+    # Each worker holds one running and one prefetched task: nothing lost, nothing extra.
+    assert len(controller.sampled) == finished + 2 * n_envs
+    played_ids = [int(round(r[0][0])) for r in controller.recorded]
+    assert len(set(played_ids)) == len(played_ids), "an episode was reported twice"
+    assert set(played_ids) <= set(range(len(controller.sampled)))
+    truncated = 0
+    for task, ret, length, _success, initial_obs in controller.recorded:
+        sampled = controller.sampled[int(round(task[0]))]
+        np.testing.assert_array_equal(task, sampled)  # the task the env played, unchanged
+        expected_len = min(episode_length(task), MAX_STEPS)
+        truncated += episode_length(task) > MAX_STEPS
+        assert length == expected_len
+        assert ret == pytest.approx(float(task[1]) * expected_len, rel=1e-5)
+        np.testing.assert_allclose(initial_obs, [task[0], task[1], 0.0], rtol=1e-6)
+    assert truncated > 0, "the run must include time-limit truncations"
+    assert controller.steps == n_steps * n_envs
+
+
+def test_each_worker_plays_its_own_tasks_in_order():
+    """Per worker, the reported tasks are the ones pushed to it, in push order."""
+    controller = RecordingController()
+    venv = CurriculumVecEnv(vec_env("dummy", 2), controller)
+    pushed: dict[int, list[int]] = {0: [], 1: []}
+    original_push = venv._push
+
+    def spy(index):
+        original_push(index)
+        pushed[index].append(len(controller.sampled) - 1)
+
+    venv._push = spy
+    history = run_random_steps(venv, 40)
+    per_worker: dict[int, list[int]] = {0: [], 1: []}
+    for dones, infos in history:
+        for i in np.flatnonzero(dones):
+            per_worker[int(i)].append(int(round(infos[i]["curriculum"]["task"][0])))
+    for worker in (0, 1):
+        assert per_worker[worker] == pushed[worker][: len(per_worker[worker])]
+        assert len(pushed[worker]) == len(per_worker[worker]) + 2
+
+
+def test_reset_without_queued_task_fails_loudly():
+    env = make_counting_env()
+    obs, info = env.reset(options={"task": [1.0, 0.5]})  # explicit tasks bypass the queue
+    assert obs[0] == 1.0
+    with pytest.raises(WorkerError, match="no task queued"):
+        from acl3d.training.curriculum import raise_worker_errors
+
+        raise_worker_errors([env.reset()[1]], "reset")
+
+
+@pytest.mark.parametrize("kind", ["dummy", "forkserver"])
+def test_crashing_worker_stops_with_its_traceback(kind):
+    controller = RecordingController()
+    venv = CurriculumVecEnv(vec_env(kind, 2, crash_at_task=5), controller)
+    try:
+        with pytest.raises(WorkerError, match="(?s)worker .* crashed.*FloatingPointError"):
+            run_random_steps(venv, 100)
+    finally:
+        venv.close()
