@@ -1,3 +1,10 @@
 """acl3d: automatic curriculum learning on procedurally generated 3D MuJoCo tracks."""
 
+from acl3d.rendering import select_gl_backend
+
+select_gl_backend()  # must run before anything imports mujoco
+
+from acl3d.envs import ENV_NAMES, make  # noqa: E402  (registers the gymnasium ids)
+
 __version__ = "0.1.0"
+__all__ = ["ENV_NAMES", "make", "__version__"]

@@ -55,9 +55,13 @@ class TaskSpace:
                 raise ValueError(f"duplicate task parameter name {p.name!r}")
             lo, hi = np.asarray(p.low), np.asarray(p.high)
             if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-                raise ValueError(f"task parameter {p.name!r}: bounds must be finite, got {p.low}..{p.high}")
+                raise ValueError(
+                    f"task parameter {p.name!r}: bounds must be finite, got {p.low}..{p.high}"
+                )
             if np.any(lo > hi):
-                raise ValueError(f"task parameter {p.name!r}: min > max in bounds {p.low}..{p.high}")
+                raise ValueError(
+                    f"task parameter {p.name!r}: min > max in bounds {p.low}..{p.high}"
+                )
             offsets[p.name] = (start, start + p.dims)
             start += p.dims
         object.__setattr__(self, "_offsets", offsets)
@@ -72,17 +76,23 @@ class TaskSpace:
             if len(b) > 0 and isinstance(b[0], (list, tuple, np.ndarray)):
                 pairs = np.asarray(b, dtype=np.float64)
                 if pairs.ndim != 2 or pairs.shape[1] != 2:
-                    raise ValueError(f"bounds for {name!r}: expected a list of [min, max] pairs, got {b}")
+                    raise ValueError(
+                        f"bounds for {name!r}: expected a list of [min, max] pairs, got {b}"
+                    )
                 low, high = tuple(pairs[:, 0]), tuple(pairs[:, 1])
             elif len(b) == 2:
                 low, high = (float(b[0]),), (float(b[1]),)
             elif len(b) == 3:
                 n = int(b[2])
                 if n < 1 or n != b[2]:
-                    raise ValueError(f"bounds for {name!r}: dimension count must be a positive integer, got {b[2]}")
+                    raise ValueError(
+                        f"bounds for {name!r}: dimension count must be a positive integer, got {b[2]}"
+                    )
                 low, high = (float(b[0]),) * n, (float(b[1]),) * n
             else:
-                raise ValueError(f"bounds for {name!r}: expected [min, max], [min, max, n] or [[min, max], ...], got {b}")
+                raise ValueError(
+                    f"bounds for {name!r}: expected [min, max], [min, max, n] or [[min, max], ...], got {b}"
+                )
             params.append(TaskParameter(name, tuple(map(float, low)), tuple(map(float, high))))
         return cls(tuple(params))
 
@@ -93,18 +103,29 @@ class TaskSpace:
             return space
         if isinstance(space, Mapping):
             return cls.from_bounds(space)
-        raise TypeError(f"expected a TaskSpace or a bounds dict {{name: [min, max]}}, got {type(space).__name__}")
+        raise TypeError(
+            f"expected a TaskSpace or a bounds dict {{name: [min, max]}}, got {type(space).__name__}"
+        )
 
     def with_bounds(self, **bounds) -> TaskSpace:
         """A copy whose named parameters get new bounds, e.g. `with_bounds(stump_height=(0, 9))`."""
         params = []
         unknown = set(bounds) - set(self.names)
         if unknown:
-            raise ValueError(f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}")
+            raise ValueError(
+                f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}"
+            )
         for p in self.parameters:
             if p.name in bounds:
                 lo, hi = bounds[p.name]
-                p = TaskParameter(p.name, _as_tuple(lo, p.dims, p.name), _as_tuple(hi, p.dims, p.name), p.unit, p.doc, p.default)
+                p = TaskParameter(
+                    p.name,
+                    _as_tuple(lo, p.dims, p.name),
+                    _as_tuple(hi, p.dims, p.name),
+                    p.unit,
+                    p.doc,
+                    p.default,
+                )
             params.append(p)
         return TaskSpace(tuple(params))
 
@@ -135,13 +156,24 @@ class TaskSpace:
 
     def bounds_dict(self) -> dict[str, list]:
         """TeachMyAgent-style bounds (a list of [min, max] pairs per parameter)."""
-        return {p.name: [[lo, hi] for lo, hi in zip(p.low, p.high)] if p.dims > 1 else [p.low[0], p.high[0]] for p in self.parameters}
+        return {
+            p.name: [[lo, hi] for lo, hi in zip(p.low, p.high)]
+            if p.dims > 1
+            else [p.low[0], p.high[0]]
+            for p in self.parameters
+        }
 
     def describe(self) -> str:
         lines = []
         for p in self.parameters:
-            rng = f"[{p.low[0]:g}, {p.high[0]:g}]" if len(set(p.low)) == 1 and len(set(p.high)) == 1 else f"{list(p.low)}..{list(p.high)}"
-            lines.append(f"{p.name} ({p.dims}d{', ' + p.unit if p.unit else ''}): {rng}  {p.doc}".rstrip())
+            rng = (
+                f"[{p.low[0]:g}, {p.high[0]:g}]"
+                if len(set(p.low)) == 1 and len(set(p.high)) == 1
+                else f"{list(p.low)}..{list(p.high)}"
+            )
+            lines.append(
+                f"{p.name} ({p.dims}d{', ' + p.unit if p.unit else ''}): {rng}  {p.doc}".rstrip()
+            )
         return "\n".join(lines)
 
     def slice(self, name: str) -> slice:
@@ -162,7 +194,9 @@ class TaskSpace:
         """{name: value} -> flat float64 vector; missing names take their default (or fail)."""
         unknown = set(task) - set(self.names)
         if unknown:
-            raise ValueError(f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}")
+            raise ValueError(
+                f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}"
+            )
         parts = []
         for p in self.parameters:
             if p.name in task:
@@ -173,7 +207,9 @@ class TaskSpace:
                 raise ValueError(f"task parameter {p.name!r} missing and it has no default")
             arr = np.asarray(value, dtype=np.float64).reshape(-1)
             if arr.size != p.dims:
-                raise ValueError(f"task parameter {p.name!r}: expected {p.dims} value(s), got {arr.size} ({value!r})")
+                raise ValueError(
+                    f"task parameter {p.name!r}: expected {p.dims} value(s), got {arr.size} ({value!r})"
+                )
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"task parameter {p.name!r}: value {value!r} is not finite")
             parts.append(arr)
@@ -183,7 +219,9 @@ class TaskSpace:
         """Check shape and finiteness of a flat task vector; return it as float64."""
         vec = np.asarray(vector, dtype=np.float64)
         if vec.ndim != 1 or vec.shape[0] != self.dim:
-            raise ValueError(f"task vector: expected shape ({self.dim},) for parameters {list(self.names)}, got {vec.shape}")
+            raise ValueError(
+                f"task vector: expected shape ({self.dim},) for parameters {list(self.names)}, got {vec.shape}"
+            )
         if not np.all(np.isfinite(vec)):
             bad = [self._name_of(i) for i in np.flatnonzero(~np.isfinite(vec))]
             raise ValueError(f"task vector: non-finite value(s) for {bad}: {vec}")

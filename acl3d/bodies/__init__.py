@@ -1,1 +1,47 @@
-"""bodies."""
+"""Embodiments: `make_body(name, planar=..., **options)`; `BODIES` lists the names."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+
+from acl3d.bodies.base import Body, BoundBody, GraspSensor, Motor
+
+# name -> "module:Class"
+_REGISTRY: dict[str, str] = {
+    "classic_bipedal": "acl3d.bodies.classic_bipedal:ClassicBipedal",
+}
+# TeachMyAgent names of older variants that map onto ours
+ALIASES: dict[str, str] = {"old_classic_bipedal": "classic_bipedal"}
+
+BODIES: tuple[str, ...] = tuple(_REGISTRY)
+
+
+def body_class(name: str) -> type[Body]:
+    name = ALIASES.get(name, name)
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown body {name!r}; valid bodies: {', '.join(BODIES)}")
+    module, cls = _REGISTRY[name].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_body(name: str, planar: bool | None = None, **options) -> Body:
+    """Build a body description; unknown options raise with the valid ones listed."""
+    cls = body_class(name)
+    valid = [p for p in inspect.signature(cls.__init__).parameters if p not in ("self", "planar")]
+    unknown = [k for k in options if k not in valid]
+    if unknown:
+        raise ValueError(f"unknown option(s) {unknown} for body {name!r}; valid: {valid or 'none'}")
+    return cls(planar=planar, **options)
+
+
+__all__ = [
+    "ALIASES",
+    "BODIES",
+    "Body",
+    "BoundBody",
+    "GraspSensor",
+    "Motor",
+    "body_class",
+    "make_body",
+]

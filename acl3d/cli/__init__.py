@@ -17,7 +17,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="acl3d", description="Automatic curriculum learning on 3D MuJoCo tracks.")
+    parser = argparse.ArgumentParser(
+        prog="acl3d", description="Automatic curriculum learning on 3D MuJoCo tracks."
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

@@ -38,7 +38,9 @@ def make(name: str, task_space, seed: int | None = None, **params) -> Teacher:
     valid = [p for p in sig.parameters if p not in ("self", "task_space", "seed")]
     unknown = [p for p in params if p not in valid]
     if unknown:
-        raise ValueError(f"unknown parameter(s) {unknown} for teacher {name!r}; valid: {', '.join(valid)}")
+        raise ValueError(
+            f"unknown parameter(s) {unknown} for teacher {name!r}; valid: {', '.join(valid)}"
+        )
     return cls(task_space, seed=seed, **params)
 
 

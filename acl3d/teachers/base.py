@@ -90,7 +90,10 @@ class Teacher(ABC):
     def non_exploratory_task_sampling(self) -> dict[str, Any]:
         """A task from the teacher's current distribution without exploration noise (for plots)."""
         task = np.asarray(self._non_exploratory_sample(), dtype=np.float32).reshape(self.dim)
-        return {"task": task, "infos": {"bk_index": len(self.bk.get("episodes", [])), "task_infos": None}}
+        return {
+            "task": task,
+            "infos": {"bk_index": len(self.bk.get("episodes", [])), "task_infos": None},
+        }
 
     def is_non_exploratory_task_sampling_available(self) -> bool:
         return True
@@ -169,7 +172,9 @@ class Teacher(ABC):
     def _check_task(self, task) -> np.ndarray:
         arr = np.asarray(task, dtype=np.float64)
         if arr.shape != (self.dim,):
-            raise ValueError(f"task: expected shape ({self.dim},) for {list(self.task_space.names)}, got {arr.shape}")
+            raise ValueError(
+                f"task: expected shape ({self.dim},) for {list(self.task_space.names)}, got {arr.shape}"
+            )
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"task: non-finite values {arr}")
         return arr

@@ -77,6 +77,10 @@ class CurriculumEnv(gym.Wrapper):
     def queued_tasks(self) -> int:
         return len(self._queue)
 
+    def clear_tasks(self) -> None:
+        """Drop queued tasks (an evaluation env starting a new test pass)."""
+        self._queue.clear()
+
     def reset(self, *, seed=None, options=None):
         if self._error is not None:  # stay inert after a crash: the main side stops the run
             return self._placeholder_obs(), {ERROR_KEY: self._error}

@@ -1,0 +1,76 @@
+"""The arena: the MJCF track template, sized to the terrain grid, with a body attached at spawn.
+
+Topology (which body, which track kind) is fixed when the model is compiled; shape (terrain
+heights) is written into the compiled model in place each episode, so a new task never recompiles.
+Each env compiles its own model: models hold per-env state (heights, actuator torque caps).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from acl3d.assets import mjcf_path
+from acl3d.bodies.base import PREFIX, Body, BoundBody
+from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT, START_X, TrackGrid
+
+TRACK_HALF_WIDTH = 2.0  # metres: walls at +-2 m keep full-3D bodies on the track
+HFIELD_BASE_DEPTH = 1.0
+
+
+class Arena:
+    """Compiled track model + the in-place terrain writer."""
+
+    def __init__(
+        self,
+        body: Body,
+        grid: TrackGrid,
+        template: str = "arena/track.xml",
+        camera_distance: float = 9.0,
+    ):
+        self.body = body
+        self.grid = grid
+        spec = mujoco.MjSpec.from_file(str(mjcf_path(template)))
+        half_length = (grid.x_max - grid.x_min) / 2
+        centre_x = (grid.x_max + grid.x_min) / 2
+        hfield = spec.hfield("terrain")
+        hfield.ncol, hfield.nrow = grid.ncol, 2
+        hfield.size = [half_length, TRACK_HALF_WIDTH, MAX_TERRAIN_HEIGHT, HFIELD_BASE_DEPTH]
+        spec.geom("terrain").pos = [centre_x, 0.0, 0.0]
+        for name, side in (("wall_left", 1), ("wall_right", -1)):
+            wall = spec.geom(name)
+            wall.size = [half_length, 0.05, wall.size[2]]
+            wall.pos = [centre_x, side * (TRACK_HALF_WIDTH + 0.05), wall.size[2]]
+        self.customise(spec)
+
+        body_spec = body.spec()
+        root = body_spec.body(body.root)
+        root.add_camera(
+            name="track",
+            mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM,
+            pos=[1.5, -camera_distance, 1.0],
+            xyaxes=[1, 0, 0, 0, 0.15, 1],
+        )
+        frame = spec.worldbody.add_frame(pos=[START_X, 0.0, body.spawn_height])
+        spec.attach(body_spec, prefix=PREFIX, frame=frame)
+        self.spec = spec
+        self.model = spec.compile()
+        self.bound = BoundBody(body, self.model)
+        self.hfield_id = self.model.hfield("terrain").id
+        adr, n = self.model.hfield_adr[self.hfield_id], grid.ncol * 2
+        self._hfield = self.model.hfield_data[adr : adr + n].reshape(2, grid.ncol)
+        self.heights = np.zeros(grid.ncol)
+        self.version = 0
+        self.camera = PREFIX + "track"
+
+    def customise(self, spec: mujoco.MjSpec) -> None:
+        """Hook for arenas that add to the track template before compiling (e.g. Parkour)."""
+
+    def write_heights(self, heights: np.ndarray) -> None:
+        """Write the terrain profile (metres above the flat ground) into the compiled heightfield."""
+        self.heights = heights
+        self._hfield[:] = np.clip(heights / MAX_TERRAIN_HEIGHT, 0.0, 1.0)[None, :]
+        self.version += 1
+
+    def ground_height(self, x: float) -> float:
+        return float(np.interp(x, self.grid.x, self.heights))

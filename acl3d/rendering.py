@@ -1,0 +1,103 @@
+"""Headless offscreen rendering: choose the OpenGL backend before MuJoCo loads, render fast.
+
+MuJoCo reads MUJOCO_GL once, when it is imported. `select_gl_backend()` runs on `import acl3d`
+and, if the user has not chosen, picks EGL, then OSMesa, from the libraries present. Renderer
+creation failures are turned into a message saying what was tried and what to install.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import os
+import sys
+
+_BACKEND_LIBRARIES = {
+    "egl": ("EGL", "libegl1 libgl1 (Mesa: libegl-mesa0)"),
+    "osmesa": ("OSMesa", "libosmesa6"),
+}
+_chosen: dict[str, object] = {"backend": None, "automatic": False, "tried": []}
+
+
+def select_gl_backend() -> str | None:
+    """Set MUJOCO_GL to egl or osmesa when the user has not set it and no display exists."""
+    if "MUJOCO_GL" in os.environ:
+        _chosen.update(backend=os.environ["MUJOCO_GL"], automatic=False)
+        return os.environ["MUJOCO_GL"]
+    if "mujoco" in sys.modules:  # too late to choose: MuJoCo picked its platform at import
+        return None
+    if (
+        sys.platform.startswith("linux")
+        and not os.environ.get("DISPLAY")
+        and not os.environ.get("WAYLAND_DISPLAY")
+    ):
+        for backend, (lib, _) in _BACKEND_LIBRARIES.items():
+            _chosen["tried"].append(backend)
+            if ctypes.util.find_library(lib):
+                os.environ["MUJOCO_GL"] = backend
+                if backend == "osmesa":
+                    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+                _chosen.update(backend=backend, automatic=True)
+                return backend
+    return None
+
+
+def gl_error_message(exc: BaseException) -> str:
+    backend = os.environ.get("MUJOCO_GL", "(unset: MuJoCo's default, which needs a display)")
+    tried = ", ".join(_chosen["tried"]) or "none (MUJOCO_GL was set by the user)"
+    hints = "; ".join(
+        f"MUJOCO_GL={b} needs the Debian package(s) {pkgs}"
+        for b, (_, pkgs) in _BACKEND_LIBRARIES.items()
+    )
+    return (
+        f"offscreen rendering failed with MUJOCO_GL={backend} ({type(exc).__name__}: {exc}). "
+        f"Backends tried automatically: {tried}. {hints}. "
+        "Set MUJOCO_GL before importing mujoco or acl3d, e.g. `MUJOCO_GL=osmesa python ...`."
+    )
+
+
+class TrackRenderer:
+    """A mujoco.Renderer bound to one model, with a camera, quality preset and hfield re-uploads."""
+
+    def __init__(
+        self,
+        model,
+        width: int = 640,
+        height: int = 480,
+        camera: str | int = -1,
+        quality: str = "fast",
+    ):
+        import mujoco
+
+        if quality not in ("fast", "high"):
+            raise ValueError(f"quality={quality!r}; valid: 'fast' (no MSAA, no shadows) or 'high'")
+        model.vis.quality.offsamples = 0 if quality == "fast" else 8
+        if quality == "high":
+            model.vis.quality.shadowsize = 4096
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+        try:
+            self._renderer = mujoco.Renderer(model, height=height, width=width)
+        except Exception as exc:  # mujoco.FatalError, EGL/OSMesa errors from PyOpenGL
+            raise RuntimeError(gl_error_message(exc)) from exc
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = quality == "high"
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = quality == "high"
+        self.model = model
+        self.camera = camera
+        self._uploaded_versions: dict[int, int] = {}
+
+    def upload_hfield(self, hfield_id: int, version: int) -> None:
+        """Send a heightfield to the GPU only when its contents changed since the last upload."""
+        import mujoco
+
+        if self._uploaded_versions.get(hfield_id) != version:
+            mujoco.mjr_uploadHField(self.model, self._renderer._mjr_context, hfield_id)
+            self._uploaded_versions[hfield_id] = version
+
+    def render(self, data):
+        self._renderer.update_scene(data, camera=self.camera)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,483 @@
+"""ALP-GMM (Portelas et al., CoRL 2019): sample tasks from Gaussians fitted where progress is.
+
+Every episode gets an absolute learning progress ALP = |r - r_nn|, where r_nn is the return of the
+nearest earlier task. Every `fit_rate` episodes, Gaussian mixtures over [task, ALP] are fitted for
+each k in `potential_ks` and the best one by AIC is kept; tasks are then drawn from a Gaussian
+chosen in proportion to its mean ALP, plus a `random_task_ratio` of uniform tasks.
+
+Differences from the originals (why): tasks are handled in [0, 1]-normalised coordinates over the
+non-degenerate dimensions only, and the ALP coordinate is divided by the range of returns seen so
+far, so the fit neither depends on the units of the task dimensions or of the returns (TeachMyAgent
+feeds raw returns) nor breaks on constant dimensions. The mixtures are fitted by the small EM in
+this module (same model and AIC as sklearn's GaussianMixture, about 10x less CPU).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from acl3d.teachers.base import Teacher
+
+_FITNESS = ("aic", "bic", "aicc")
+_LOG_2PI = math.log(2.0 * math.pi)
+_EPS10 = 10.0 * np.finfo(np.float64).eps
+
+
+# ---------------------------------------------------------------------- Gaussian mixtures
+class GaussianMixture:
+    """A fitted full-covariance Gaussian mixture (plain arrays, so it saves as JSON + npz)."""
+
+    def __init__(self, weights, means, covariances):
+        self.weights = np.asarray(weights, dtype=np.float64)
+        self.means = np.asarray(means, dtype=np.float64)
+        self.covariances = np.asarray(covariances, dtype=np.float64)
+        self._chol = np.linalg.cholesky(self.covariances)
+
+    @property
+    def k(self) -> int:
+        return len(self.weights)
+
+    def sample_component(self, rng: np.random.Generator, index: int) -> np.ndarray:
+        z = rng.standard_normal(self.means.shape[1])
+        return self.means[index] + self._chol[index] @ z
+
+    def state(self) -> dict[str, np.ndarray]:
+        return {"weights": self.weights, "means": self.means, "covariances": self.covariances}
+
+
+def _log_gauss(x: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
+    """log N(x_n | mean_k, cov_k) as an (n, k) array."""
+    chol = np.linalg.cholesky(covs)
+    inv_chol = np.linalg.inv(chol)
+    diff = x[None, :, :] - means[:, None, :]
+    y = diff @ inv_chol.transpose(0, 2, 1)
+    log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
+    return (-0.5 * (x.shape[1] * _LOG_2PI + (y * y).sum(axis=2)) - 0.5 * log_det[:, None]).T
+
+
+def _m_step(x: np.ndarray, resp: np.ndarray, reg_covar: float):
+    nk = resp.sum(axis=0) + _EPS10
+    means = (resp.T @ x) / nk[:, None]
+    diff = x[None, :, :] - means[:, None, :]
+    covs = (resp.T[:, :, None] * diff).transpose(0, 2, 1) @ diff / nk[:, None, None]
+    covs += reg_covar * np.eye(x.shape[1])
+    return nk / x.shape[0], means, covs
+
+
+def _kmeanspp_resp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """Hard responsibilities from k-means++ seeding (sklearn's "k-means++" initialisation)."""
+    n = x.shape[0]
+    centres = [x[rng.integers(n)]]
+    d2 = ((x - centres[0]) ** 2).sum(axis=1)
+    for _ in range(1, k):
+        total = d2.sum()
+        i = (
+            int(np.searchsorted(np.cumsum(d2), rng.random() * total))
+            if total > 0
+            else rng.integers(n)
+        )
+        centres.append(x[min(i, n - 1)])
+        d2 = np.minimum(d2, ((x - centres[-1]) ** 2).sum(axis=1))
+    dist = ((x[:, None, :] - np.asarray(centres)[None, :, :]) ** 2).sum(axis=2)
+    resp = np.zeros((n, k))
+    resp[np.arange(n), dist.argmin(axis=1)] = 1.0
+    return resp
+
+
+def fit_gmm(
+    x: np.ndarray,
+    k: int,
+    rng: np.random.Generator,
+    *,
+    n_init: int = 1,
+    max_iter: int = 100,
+    tol: float = 1e-3,
+    reg_covar: float = 1e-6,
+) -> tuple[GaussianMixture, float]:
+    """EM for a full-covariance mixture; returns the best of `n_init` runs and its total log-lik."""
+    best, best_ll = None, -np.inf
+    for _ in range(n_init):
+        weights, means, covs = _m_step(x, _kmeanspp_resp(x, k, rng), reg_covar)
+        prev = -np.inf
+        for _ in range(max_iter):
+            log_p = _log_gauss(x, means, covs) + np.log(weights)
+            top = log_p.max(axis=1, keepdims=True)
+            log_norm = top[:, 0] + np.log(np.exp(log_p - top).sum(axis=1))
+            ll = float(log_norm.mean())
+            if abs(ll - prev) < tol:
+                break
+            prev = ll
+            weights, means, covs = _m_step(x, np.exp(log_p - log_norm[:, None]), reg_covar)
+        if ll > best_ll:
+            best, best_ll = (weights, means, covs), ll
+    return GaussianMixture(*best), best_ll * x.shape[0]
+
+
+def gmm_fitness(name: str, log_lik: float, k: int, n: int, d: int) -> float:
+    """AIC / BIC / AICc of a k-component full-covariance mixture in d dims (lower is better)."""
+    n_params = k * (d * (d + 1) / 2 + d + 1) - 1
+    if name == "aic":
+        return -2.0 * log_lik + 2.0 * n_params
+    if name == "bic":
+        return -2.0 * log_lik + n_params * math.log(n)
+    penalty = (
+        2.0 * n_params * (n_params + 1) / (n - n_params - 1) if n - n_params - 1 > 0 else np.inf
+    )
+    return -2.0 * log_lik + 2.0 * n_params + penalty
+
+
+def fit_best_gmm(x, ks, rng, fitness: str, n_init: int) -> GaussianMixture:
+    """Fit one mixture per k and keep the fittest (k larger than the data size is skipped)."""
+    best, best_score = None, np.inf
+    for k in ks:
+        if k > len(x):
+            continue
+        gmm, ll = fit_gmm(x, int(k), rng, n_init=n_init)
+        score = gmm_fitness(fitness, ll, int(k), len(x), x.shape[1])
+        if score < best_score:
+            best, best_score = gmm, score
+    return best
+
+
+def pick_proportional(rng: np.random.Generator, weights: np.ndarray) -> int:
+    """Index drawn with probability proportional to non-negative `weights` (uniform if all 0)."""
+    cum = np.cumsum(weights)
+    if not cum[-1] > 0:
+        return int(rng.integers(len(weights)))
+    return int(min(np.searchsorted(cum, rng.random() * cum[-1], side="right"), len(cum) - 1))
+
+
+# ---------------------------------------------------------------------- shared GMM-teacher machinery
+def check_common_params(
+    fit_rate, nb_bootstrap, random_task_ratio, potential_ks, gmm_fitness_func, nb_em_init
+):
+    """Validate the parameters ALP-GMM and Covar-GMM share; returns (nb_bootstrap, ks)."""
+    if not isinstance(fit_rate, (int, np.integer)) or fit_rate < 2:
+        raise ValueError(f"fit_rate must be an integer >= 2, got {fit_rate!r}")
+    nb_bootstrap = fit_rate if nb_bootstrap is None else nb_bootstrap
+    if not isinstance(nb_bootstrap, (int, np.integer)) or nb_bootstrap < 0:
+        raise ValueError(
+            f"nb_bootstrap must be a non-negative integer or None, got {nb_bootstrap!r}"
+        )
+    if not 0.0 <= float(random_task_ratio) <= 1.0:
+        raise ValueError(f"random_task_ratio must be in [0, 1], got {random_task_ratio!r}")
+    ks = [int(k) for k in np.atleast_1d(np.asarray(potential_ks))]
+    if not ks or min(ks) < 1:
+        raise ValueError(
+            f"potential_ks must be a non-empty list of integers >= 1, got {potential_ks!r}"
+        )
+    if min(ks) > fit_rate:
+        raise ValueError(f"potential_ks {ks} all exceed fit_rate {fit_rate} (points per fit)")
+    if gmm_fitness_func not in _FITNESS:
+        raise ValueError(f"gmm_fitness_func must be one of {_FITNESS}, got {gmm_fitness_func!r}")
+    if not isinstance(nb_em_init, (int, np.integer)) or nb_em_init < 1:
+        raise ValueError(f"nb_em_init must be an integer >= 1, got {nb_em_init!r}")
+    return int(nb_bootstrap), ks
+
+
+def check_initial_dist(initial_dist, dim: int):
+    """`{"mean": (d,), "variance": (d, d) covariance}` -> (mean, covariance) arrays, or None."""
+    if initial_dist is None:
+        return None
+    try:
+        mean = np.asarray(initial_dist["mean"], dtype=np.float64).reshape(dim)
+        cov = np.asarray(initial_dist["variance"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(
+            f"initial_dist must be {{'mean': ({dim},), 'variance': ({dim}, {dim})}}, got {initial_dist!r} ({exc})"
+        ) from None
+    if cov.ndim == 1 and cov.shape == (dim,):
+        cov = np.diag(cov)
+    if cov.shape != (dim, dim) or not np.all(np.isfinite(cov)) or not np.all(np.isfinite(mean)):
+        raise ValueError(
+            f"initial_dist variance must be a finite ({dim}, {dim}) covariance, got shape {cov.shape}"
+        )
+    eig = np.linalg.eigvalsh((cov + cov.T) / 2)
+    if eig.min() < -1e-9 * max(1.0, eig.max()):
+        raise ValueError(
+            f"initial_dist variance must be positive semi-definite (min eigenvalue {eig.min():g})"
+        )
+    return mean, cov
+
+
+class GMMTeacherBase(Teacher):
+    """Bootstrap / random / mixture sampling shared by ALP-GMM and Covar-GMM.
+
+    Subclasses fill `self.gmm` (fitted over [normalised active task dims, extra columns]) and define
+    `_component_weights()`; the extra columns are dropped when sampling.
+    """
+
+    def _init_gmm(
+        self,
+        fit_rate,
+        nb_bootstrap,
+        random_task_ratio,
+        potential_ks,
+        gmm_fitness_func,
+        nb_em_init,
+        initial_dist,
+    ):
+        self.nb_bootstrap, self.potential_ks = check_common_params(
+            fit_rate, nb_bootstrap, random_task_ratio, potential_ks, gmm_fitness_func, nb_em_init
+        )
+        self.fit_rate = int(fit_rate)
+        self.random_task_ratio = float(random_task_ratio)
+        self.gmm_fitness_func = gmm_fitness_func
+        self.nb_em_init = int(nb_em_init)
+        self.initial_dist = check_initial_dist(initial_dist, self.dim)
+        if self.initial_dist is not None:
+            self._init_chol = np.linalg.cholesky(self.initial_dist[1] + 1e-12 * np.eye(self.dim))
+        self.active = self.maxs > self.mins
+        self.span = np.where(self.active, self.maxs - self.mins, 1.0)
+        self.d_act = int(self.active.sum())
+        self.gmm: GaussianMixture | None = None
+        self.r_min, self.r_max = np.inf, -np.inf
+
+    # ------------------------------------------------------------------ coordinates
+    def _to_unit(self, task: np.ndarray) -> np.ndarray:
+        return ((task - self.mins) / self.span)[self.active]
+
+    def _from_unit(self, unit: np.ndarray) -> np.ndarray:
+        task = self.mins.copy()
+        task[self.active] = (
+            self.mins[self.active] + np.clip(unit, 0.0, 1.0) * self.span[self.active]
+        )
+        return task
+
+    def _reward_scale(self) -> float:
+        span = self.r_max - self.r_min
+        return 1.0 / span if span > 0 else 1.0
+
+    # ------------------------------------------------------------------ sampling
+    def _sample(self) -> np.ndarray:
+        if (
+            self.nb_episodes < self.nb_bootstrap
+            or self.gmm is None
+            or self.rng.random() < self.random_task_ratio
+        ):
+            if self.nb_episodes < self.nb_bootstrap and self.initial_dist is not None:
+                self.bk["tasks_origin"].append(-2)
+                mean, _ = self.initial_dist
+                return self.clip(mean + self._init_chol @ self.rng.standard_normal(self.dim))
+            self.bk["tasks_origin"].append(-1)
+            return self.uniform_task()
+        index = pick_proportional(self.rng, self._component_weights())
+        self.bk["tasks_origin"].append(index)
+        return self._from_unit(self.gmm.sample_component(self.rng, index)[: self.d_act])
+
+    def _non_exploratory_sample(self) -> np.ndarray:
+        if self.gmm is None:
+            return self.uniform_task()
+        index = pick_proportional(self.rng, self._component_weights())
+        return self._from_unit(self.gmm.sample_component(self.rng, index)[: self.d_act])
+
+    def is_non_exploratory_task_sampling_available(self) -> bool:
+        return self.gmm is not None
+
+    def _component_weights(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _fit(self, data: np.ndarray) -> None:
+        em_rng = np.random.default_rng(int(self.rng.integers(2**63)))
+        self.gmm = fit_best_gmm(
+            data, self.potential_ks, em_rng, self.gmm_fitness_func, self.nb_em_init
+        )
+        self.bk["weights"].append(self.gmm.weights.copy())
+        self.bk["means"].append(self.gmm.means.copy())
+        self.bk["covariances"].append(self.gmm.covariances.copy())
+        self.bk["episodes"].append(self.nb_episodes + 1)
+
+    # ------------------------------------------------------------------ plots
+    def plot_state(self) -> dict[str, Any] | None:
+        """The mixture in task units (extra columns dropped, degenerate dims fixed)."""
+        if self.gmm is None:
+            return None
+        idx = np.flatnonzero(self.active)
+        k = self.gmm.k
+        means = np.tile(self.mins, (k, 1))
+        means[:, idx] = self.mins[idx] + self.gmm.means[:, : self.d_act] * self.span[idx]
+        covs = np.zeros((k, self.dim, self.dim))
+        scale = np.outer(self.span[idx], self.span[idx])
+        covs[np.ix_(np.arange(k), idx, idx)] = (
+            self.gmm.covariances[:, : self.d_act, : self.d_act] * scale
+        )
+        return {
+            "kind": "gmm",
+            "means": means,
+            "covariances": covs,
+            "weights": self._component_weights(),
+        }
+
+    # ------------------------------------------------------------------ state
+    def _gmm_state(self) -> dict[str, Any]:
+        return {
+            "gmm": None if self.gmm is None else self.gmm.state(),
+            "r_min": None if not np.isfinite(self.r_min) else self.r_min,
+            "r_max": None if not np.isfinite(self.r_max) else self.r_max,
+        }
+
+    def _load_gmm_state(self, extra: dict[str, Any]) -> None:
+        g = extra["gmm"]
+        self.gmm = (
+            None if g is None else GaussianMixture(g["weights"], g["means"], g["covariances"])
+        )
+        self.r_min = np.inf if extra["r_min"] is None else float(extra["r_min"])
+        self.r_max = -np.inf if extra["r_max"] is None else float(extra["r_max"])
+
+
+# ---------------------------------------------------------------------- nearest-neighbour ALP
+class NearestNeighbourALP:
+    """ALP = |r - r_nn| against the nearest earlier task: a kd-tree plus a brute-force buffer.
+
+    The tree is rebuilt only when the buffer holds `buffer_size` points, so each query costs one
+    tree lookup and one small vectorised scan. With `max_size`, the oldest points are dropped when
+    the tree is rebuilt (so up to `buffer_size` extra old points may be consulted in between).
+    """
+
+    def __init__(self, dim: int, buffer_size: int = 500, max_size: int | None = None):
+        self.buffer_size, self.max_size = buffer_size, max_size
+        self.tasks = np.zeros((max(1024, buffer_size), dim))
+        self.rewards = np.zeros(len(self.tasks))
+        self.n = 0
+        self.tree_start = self.tree_end = 0
+        self.tree: cKDTree | None = None
+
+    def compute(self, task: np.ndarray, reward: float) -> float:
+        """ALP of (task, reward) against the database, then add the pair to it."""
+        alp = 0.0
+        if self.n > 5:
+            best_d, best_i = np.inf, -1
+            if self.tree is not None:
+                best_d, j = self.tree.query(task)
+                best_i = self.tree_start + int(j)
+            buf = self.tasks[self.tree_end : self.n]
+            if len(buf):
+                d = ((buf - task) ** 2).sum(axis=1)
+                j = int(d.argmin())
+                if math.sqrt(d[j]) < best_d:
+                    best_i = self.tree_end + j
+            alp = abs(reward - self.rewards[best_i])
+        self._add(task, reward)
+        return alp
+
+    def _add(self, task, reward) -> None:
+        if self.n == len(self.tasks):
+            self.tasks = np.concatenate([self.tasks, np.zeros_like(self.tasks)])
+            self.rewards = np.concatenate([self.rewards, np.zeros_like(self.rewards)])
+        self.tasks[self.n], self.rewards[self.n] = task, reward
+        self.n += 1
+        if self.n - self.tree_end >= self.buffer_size:
+            self._rebuild()
+
+    def _rebuild(self) -> None:
+        self.tree_end = self.n
+        if self.max_size is not None:
+            self.tree_start = max(self.tree_start, self.n - self.max_size)
+        self.tree = (
+            cKDTree(self.tasks[self.tree_start : self.tree_end])
+            if self.tree_end > self.tree_start
+            else None
+        )
+
+    def state(self) -> dict[str, Any]:
+        return {
+            "tasks": self.tasks[: self.n].copy(),
+            "rewards": self.rewards[: self.n].copy(),
+            "tree_start": self.tree_start,
+            "tree_end": self.tree_end,
+        }
+
+    def load(self, s: dict[str, Any]) -> None:
+        tasks = np.asarray(s["tasks"], dtype=np.float64).reshape(-1, self.tasks.shape[1])
+        self.n = len(tasks)
+        cap = max(1024, self.buffer_size, 2 * self.n)
+        self.tasks = np.zeros((cap, tasks.shape[1]))
+        self.rewards = np.zeros(cap)
+        self.tasks[: self.n], self.rewards[: self.n] = (
+            tasks,
+            np.asarray(s["rewards"], dtype=np.float64),
+        )
+        self.tree_start, self.tree_end = int(s["tree_start"]), int(s["tree_end"])
+        self.tree = (
+            cKDTree(self.tasks[self.tree_start : self.tree_end])
+            if self.tree_end > self.tree_start
+            else None
+        )
+
+
+# ---------------------------------------------------------------------- the teacher
+class ALPGMM(GMMTeacherBase):
+    """Absolute-learning-progress Gaussian mixture teacher (defaults: TeachMyAgent benchmark)."""
+
+    name = "alp-gmm"
+
+    def __init__(
+        self,
+        task_space,
+        seed: int | None = None,
+        *,
+        fit_rate: int = 150,
+        nb_bootstrap: int | None = None,
+        random_task_ratio: float = 0.05,
+        potential_ks=tuple(range(2, 10)),
+        gmm_fitness_func: str = "aic",
+        nb_em_init: int = 1,
+        alp_buffer_size: int = 500,
+        alp_max_size: int | None = None,
+        initial_dist: dict | None = None,
+    ):
+        super().__init__(task_space, seed)
+        self._init_gmm(
+            fit_rate,
+            nb_bootstrap,
+            random_task_ratio,
+            potential_ks,
+            gmm_fitness_func,
+            nb_em_init,
+            initial_dist,
+        )
+        if not isinstance(alp_buffer_size, (int, np.integer)) or alp_buffer_size < 1:
+            raise ValueError(f"alp_buffer_size must be an integer >= 1, got {alp_buffer_size!r}")
+        if alp_max_size is not None and (
+            not isinstance(alp_max_size, (int, np.integer)) or alp_max_size < 1
+        ):
+            raise ValueError(f"alp_max_size must be None or an integer >= 1, got {alp_max_size!r}")
+        self.alp_computer = NearestNeighbourALP(self.d_act, int(alp_buffer_size), alp_max_size)
+        self.tasks_unit: list[np.ndarray] = []  # the last fit_rate normalised tasks
+        self.raw_alps: list[float] = []  # their ALPs in return units
+
+    def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
+        unit = self._to_unit(task)
+        alp = self.alp_computer.compute(unit, reward)
+        self.r_min, self.r_max = min(self.r_min, reward), max(self.r_max, reward)
+        self.tasks_unit.append(unit)
+        self.raw_alps.append(alp)
+        del self.tasks_unit[: -self.fit_rate], self.raw_alps[: -self.fit_rate]
+        self.bk["tasks_alps"].append(alp)
+        count = self.nb_episodes + 1
+        if count >= self.nb_bootstrap and count % self.fit_rate == 0:
+            alps = np.asarray(self.raw_alps)[:, None] * self._reward_scale()
+            self._fit(np.hstack([np.asarray(self.tasks_unit), alps]))
+
+    def _component_weights(self) -> np.ndarray:
+        return np.maximum(self.gmm.means[:, -1], 0.0)
+
+    def _extra_state(self) -> dict[str, Any]:
+        return {
+            **self._gmm_state(),
+            "alp": self.alp_computer.state(),
+            "tasks_unit": np.asarray(self.tasks_unit).reshape(-1, self.d_act),
+            "raw_alps": list(self.raw_alps),
+        }
+
+    def _load_extra_state(self, extra: dict[str, Any]) -> None:
+        self._load_gmm_state(extra)
+        self.alp_computer.load(extra["alp"])
+        self.tasks_unit = list(
+            np.asarray(extra["tasks_unit"], dtype=np.float64).reshape(-1, self.d_act)
+        )
+        self.raw_alps = [float(a) for a in extra["raw_alps"]]

@@ -1,0 +1,81 @@
+"""Oracle (teachDeepRL): a hand-designed curriculum, a window that walks from easy to hard tasks.
+
+Tasks are drawn uniformly in a window of width `window_ratio` x range per dimension. Every
+`step_rate` episodes, if the mean return of those episodes exceeds `reward_thr`, the window moves
+by `window_step_vector` (task units, clamped so it stays inside the bounds). A positive step
+starts the window at the lower bound, a negative one at the upper bound. The expert knowledge is
+in the step vector: its signs say where the easy tasks are.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from acl3d.teachers.base import Teacher
+
+
+class Oracle(Teacher):
+    """teachDeepRL's sliding-window oracle; default step: +range/30 in every dimension."""
+
+    name = "oracle"
+
+    def __init__(
+        self,
+        task_space,
+        seed: int | None = None,
+        *,
+        window_step_vector=None,
+        step_rate: int = 50,
+        reward_thr: float = 230.0,
+        window_ratio: float = 1 / 6,
+    ):
+        super().__init__(task_space, seed)
+        span = self.maxs - self.mins
+        if window_step_vector is None:
+            step = span / 30.0
+        else:
+            step = np.asarray(window_step_vector, dtype=np.float64).reshape(-1)
+            if step.shape != (self.dim,) or not np.all(np.isfinite(step)):
+                raise ValueError(
+                    f"window_step_vector must hold {self.dim} finite values, got {window_step_vector!r}"
+                )
+        if not isinstance(step_rate, (int, np.integer)) or step_rate < 1:
+            raise ValueError(f"step_rate must be an integer >= 1, got {step_rate!r}")
+        if not np.isfinite(reward_thr):
+            raise ValueError(f"reward_thr must be finite, got {reward_thr!r}")
+        if not 0.0 < float(window_ratio) <= 1.0:
+            raise ValueError(f"window_ratio must be in (0, 1], got {window_ratio!r}")
+        self.step = step
+        self.step_rate = int(step_rate)
+        self.reward_thr = float(reward_thr)
+        self.width = span * float(window_ratio)
+        self.window_low = np.where(step < 0, self.maxs - self.width, self.mins)
+        self.rewards: list[float] = []
+
+    def _sample(self) -> np.ndarray:
+        return self.rng.uniform(self.window_low, self.window_low + self.width)
+
+    def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
+        self.rewards.append(reward)
+        if len(self.rewards) < self.step_rate:
+            return
+        mean = sum(self.rewards) / len(self.rewards)
+        self.rewards.clear()
+        if mean > self.reward_thr:
+            self.window_low = np.clip(
+                self.window_low + self.step, self.mins, self.maxs - self.width
+            )
+            self.bk["window_low"].append(self.window_low.copy())
+            self.bk["episodes"].append(self.nb_episodes + 1)
+
+    def plot_state(self) -> dict[str, Any]:
+        return {"kind": "box", "low": self.window_low.copy(), "high": self.window_low + self.width}
+
+    def _extra_state(self) -> dict[str, Any]:
+        return {"window_low": self.window_low.copy(), "rewards": list(self.rewards)}
+
+    def _load_extra_state(self, extra: dict[str, Any]) -> None:
+        self.window_low = np.asarray(extra["window_low"], dtype=np.float64).copy()
+        self.rewards = [float(r) for r in extra["rewards"]]

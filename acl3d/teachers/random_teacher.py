@@ -1,0 +1,19 @@
+"""Random curriculum: tasks drawn uniformly in the task-space bounds, ignoring all feedback."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from acl3d.teachers.base import Teacher
+
+
+class RandomTeacher(Teacher):
+    """The baseline every curriculum must beat (TeachMyAgent's `RandomTeacher`)."""
+
+    name = "random"
+
+    def __init__(self, task_space, seed: int | None = None):
+        super().__init__(task_space, seed)
+
+    def _sample(self) -> np.ndarray:
+        return self.uniform_task()

@@ -1,0 +1,89 @@
+"""Helpers shared by the torch-based teachers (SPDL, GoalGAN, Setter-Solver).
+
+Networks are built without touching torch's global RNG and initialised from the teacher's own
+`torch.Generator`, and their weights, optimiser moments and generator state round-trip through
+plain numpy arrays, so a saved teacher resumes bit-for-bit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+
+def check_positive(name: str, value, integer: bool = False, allow_zero: bool = False):
+    """Validate a hyperparameter: finite, > 0 (or >= 0), integer if asked; raise naming it."""
+    ok = (
+        isinstance(value, (int, np.integer))
+        if integer
+        else isinstance(value, (int, float, np.number))
+    )
+    if (
+        not ok
+        or isinstance(value, bool)
+        or not math.isfinite(value)
+        or value < 0
+        or (value == 0 and not allow_zero)
+    ):
+        kind = "integer" if integer else "number"
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be a finite {kind} {bound}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def seeded_generator(seed: int) -> torch.Generator:
+    return torch.Generator().manual_seed(int(seed))
+
+
+def linear(n_in: int, n_out: int, gen: torch.Generator, gain: float = 1.0) -> nn.Linear:
+    """A Linear layer with Xavier-uniform weights and zero biases, drawn from `gen` only."""
+    layer = nn.utils.skip_init(nn.Linear, n_in, n_out)
+    with torch.no_grad():
+        nn.init.xavier_uniform_(layer.weight, gain=gain, generator=gen)
+        layer.bias.zero_()
+    return layer
+
+
+def mlp(sizes: list[int], gen: torch.Generator, activation: type[nn.Module]) -> nn.Sequential:
+    """Linear layers of `sizes` with `activation` between them (none after the last)."""
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        layers.append(linear(a, b, gen))
+        if i < len(sizes) - 2:
+            layers.append(activation())
+    return nn.Sequential(*layers)
+
+
+def module_state(module: nn.Module) -> dict[str, np.ndarray]:
+    return {k: v.detach().cpu().numpy().copy() for k, v in module.state_dict().items()}
+
+
+def load_module_state(module: nn.Module, state: dict[str, Any]) -> None:
+    module.load_state_dict({k: torch.as_tensor(np.asarray(v)) for k, v in state.items()})
+
+
+def optimizer_state(opt: torch.optim.Optimizer) -> dict[str, dict[str, np.ndarray]]:
+    """Per-parameter moments only; hyperparameters come from the constructor on load."""
+    return {
+        str(k): {name: torch.as_tensor(v).detach().cpu().numpy().copy() for name, v in s.items()}
+        for k, s in opt.state_dict()["state"].items()
+    }
+
+
+def load_optimizer_state(opt: torch.optim.Optimizer, state: dict[str, Any]) -> None:
+    moments = {
+        int(k): {n: torch.as_tensor(np.asarray(v)) for n, v in s.items()} for k, s in state.items()
+    }
+    opt.load_state_dict({"state": moments, "param_groups": opt.state_dict()["param_groups"]})
+
+
+def generator_state(gen: torch.Generator) -> np.ndarray:
+    return gen.get_state().numpy().copy()
+
+
+def load_generator_state(gen: torch.Generator, state) -> None:
+    gen.set_state(torch.as_tensor(np.asarray(state, dtype=np.uint8)))

@@ -1,0 +1,110 @@
+"""Student-side state files: model, observation/return normalisation, replay buffer, RNG states.
+
+Everything except SB3's own model zip is JSON + NPZ (acl3d.teachers.save_state), so a run can be
+inspected or resumed without unpickling. A model `X.zip` keeps its normalisation statistics
+beside it as `X.vecnormalize.json/.npz`.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import torch
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.vec_env import VecNormalize
+
+from acl3d.teachers.base import load_state, save_state
+
+_RMS = ("mean", "var", "count")
+
+
+def normalization_path(model_path) -> Path:
+    path = Path(model_path)
+    return path.with_name(path.stem + ".vecnormalize")
+
+
+def save_normalization(vecnorm: VecNormalize, model_path) -> None:
+    state = {
+        "obs_rms": {k: np.asarray(getattr(vecnorm.obs_rms, k)) for k in _RMS},
+        "ret_rms": {k: np.asarray(getattr(vecnorm.ret_rms, k)) for k in _RMS},
+        "clip_obs": vecnorm.clip_obs,
+        "clip_reward": vecnorm.clip_reward,
+        "gamma": vecnorm.gamma,
+        "epsilon": vecnorm.epsilon,
+        "norm_obs": vecnorm.norm_obs,
+        "norm_reward": vecnorm.norm_reward,
+    }
+    save_state(normalization_path(model_path), state)
+
+
+def load_normalization_into(vecnorm: VecNormalize, model_path) -> None:
+    state = load_state(normalization_path(model_path))
+    for key in ("obs_rms", "ret_rms"):
+        rms = getattr(vecnorm, key)
+        for k in _RMS:
+            value = np.asarray(state[key][k], dtype=np.float64)
+            setattr(rms, k, value if value.ndim else float(value))
+
+
+def observation_normalizer(model_path):
+    """obs -> normalised obs with the statistics saved beside `model_path`, or None if none."""
+    path = normalization_path(model_path)
+    if not path.with_suffix(".json").exists():
+        return None
+    state = load_state(path)
+    if not state["norm_obs"]:
+        return None
+    mean = np.asarray(state["obs_rms"]["mean"])
+    std = np.sqrt(np.asarray(state["obs_rms"]["var"]) + state["epsilon"])
+    clip = state["clip_obs"]
+    return lambda obs: np.clip((obs - mean) / std, -clip, clip).astype(np.float32)
+
+
+def save_replay_buffer(buffer: ReplayBuffer, path) -> None:
+    """The filled part of an SB3 replay buffer as NPZ (plus its write position)."""
+    end = buffer.buffer_size if buffer.full else buffer.pos
+    arrays = {
+        name: getattr(buffer, name)[:end]
+        for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+        if getattr(buffer, name, None) is not None
+    }
+    np.savez(Path(path), pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
+
+
+def load_replay_buffer(buffer: ReplayBuffer, path) -> None:
+    with np.load(Path(path), allow_pickle=False) as data:
+        end = len(data["rewards"])
+        if end > buffer.buffer_size:
+            raise ValueError(
+                f"replay buffer file {path} holds {end} transitions; buffer_size is {buffer.buffer_size}"
+            )
+        for name in data.files:
+            if name not in ("pos", "full"):
+                getattr(buffer, name)[:end] = data[name]
+        buffer.pos, buffer.full = int(data["pos"]), bool(data["full"])
+
+
+def rng_state() -> dict:
+    """The global RNG states SB3 draws from (numpy for buffer sampling, torch, random)."""
+    np_state = np.random.get_state(legacy=False)
+    version, internal, gauss = random.getstate()
+    return {
+        "numpy": np_state,
+        "torch": torch.get_rng_state().numpy(),
+        "python": {
+            "version": version,
+            "state": np.asarray(internal, dtype=np.uint64),
+            "gauss": gauss,
+        },
+    }
+
+
+def set_rng_state(state: dict) -> None:
+    np_state = dict(state["numpy"])
+    np_state["state"] = {k: np.asarray(v, dtype=np.uint64) for k, v in np_state["state"].items()}
+    np.random.set_state(np_state)
+    torch.set_rng_state(torch.from_numpy(np.asarray(state["torch"], dtype=np.uint8)))
+    py = state["python"]
+    random.setstate((py["version"], tuple(int(v) for v in py["state"]), py["gauss"]))

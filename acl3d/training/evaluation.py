@@ -1,0 +1,150 @@
+"""Evaluation on a fixed test set: % mastered (return > 230) and mean return (TeachMyAgent §4.2).
+
+The test tasks are spread over the worker envs of an evaluation VecEnv (each worker plays the
+next unplayed test task at its auto-reset), so evaluation runs in parallel and never touches
+the training envs or the teacher.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from acl3d.training.curriculum import INFO_KEY, SUCCESS_THRESHOLD, raise_worker_errors
+
+
+@dataclass
+class EvalResult:
+    tasks: np.ndarray  # (N, d)
+    returns: np.ndarray  # (N,)
+    lengths: np.ndarray  # (N,)
+    successes: np.ndarray  # (N,) env's own success flag
+
+    @property
+    def mastered_pct(self) -> float:
+        """100 x share of test tasks with return strictly above 230."""
+        return float(100.0 * np.mean(self.returns > SUCCESS_THRESHOLD))
+
+    @property
+    def mean_return(self) -> float:
+        return float(np.mean(self.returns))
+
+    def summary(self) -> dict[str, float]:
+        return {
+            "mastered_pct": self.mastered_pct,
+            "mean_return": self.mean_return,
+            "std_return": float(np.std(self.returns)),
+            "mean_length": float(np.mean(self.lengths)),
+            "n_tasks": int(len(self.returns)),
+        }
+
+
+def load_test_set(path, task_space) -> np.ndarray:
+    """A test set file: .npy (N, d), .csv (header = task-space names, or bare numbers) or .json.
+
+    JSON may be a list of vectors or a list of {name: value} dicts.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"test set file {str(path)!r} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        tasks = np.load(path, allow_pickle=False)
+    elif suffix == ".csv":
+        with path.open(newline="") as f:
+            rows = [r for r in csv.reader(f) if r]
+        try:
+            float(rows[0][0])
+        except ValueError:
+            rows = rows[1:]
+        tasks = np.asarray(rows, dtype=np.float64)
+    elif suffix == ".json":
+        data = json.loads(path.read_text())
+        tasks = np.asarray(
+            [task_space.to_vector(t) if isinstance(t, dict) else t for t in data], dtype=np.float64
+        )
+    else:
+        raise ValueError(f"test set {str(path)!r}: expected a .npy, .csv or .json file")
+    tasks = np.atleast_2d(tasks).astype(np.float64)
+    if tasks.shape[1] != task_space.dim:
+        raise ValueError(
+            f"test set {str(path)!r}: tasks have {tasks.shape[1]} values, the task space "
+            f"{list(task_space.flat_names())} has {task_space.dim}"
+        )
+    for t in tasks:
+        task_space.validate_vector(t)
+    return tasks
+
+
+def evaluate(
+    predict,
+    venv: VecEnv,
+    tasks: np.ndarray,
+    seed: int = 0,
+    episodes_per_task: int = 1,
+) -> EvalResult:
+    """Play every test task `episodes_per_task` times on the CurriculumEnv workers of `venv`.
+
+    `predict(obs) -> actions` maps raw observations to actions (normalisation included).
+    Workers that run out of test tasks replay the first one and their results are discarded.
+    """
+    tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float32))
+    order = np.repeat(np.arange(len(tasks)), episodes_per_task)
+    n_total = len(order)
+    if n_total == 0:
+        raise ValueError("evaluate: the test set is empty")
+    n = venv.num_envs
+    venv.env_method("clear_tasks")
+    next_item = 0
+    current = np.full(n, -1)
+    pending = np.full(n, -1)
+
+    def push(i: int) -> int:
+        nonlocal next_item
+        item = next_item if next_item < n_total else -1
+        next_item += item >= 0
+        task = tasks[order[item]] if item >= 0 else tasks[0]
+        venv.env_method("push_task", task, indices=[i])
+        return item
+
+    for i in range(n):
+        current[i] = push(i)
+    venv.seed(seed)
+    obs = venv.reset()
+    raise_worker_errors(getattr(venv, "reset_infos", []), "evaluation reset")
+    for i in range(n):
+        pending[i] = push(i)
+    returns = np.full(n_total, np.nan)
+    lengths = np.zeros(n_total, dtype=np.int64)
+    successes = np.zeros(n_total, dtype=bool)
+    done_count = 0
+    while done_count < n_total:
+        obs, _, dones, infos = venv.step(predict(obs))
+        raise_worker_errors(infos, "evaluation step")
+        for i in np.flatnonzero(dones):
+            item = current[i]
+            if item >= 0:
+                ep = infos[i][INFO_KEY]
+                np.testing.assert_allclose(ep["task"], tasks[order[item]], rtol=1e-6)
+                returns[item], lengths[item] = ep["return"], ep["length"]
+                successes[item] = ep["success"]
+                done_count += 1
+            current[i], pending[i] = pending[i], push(int(i))
+    return EvalResult(tasks[order].astype(np.float64), returns, lengths, successes)
+
+
+def make_predict(model, deterministic: bool, normalize_obs=None):
+    """obs -> actions with the SB3 model (VecNormalize statistics applied first when given)."""
+
+    def predict(obs):
+        if normalize_obs is not None:
+            obs = normalize_obs(obs)
+        actions, _ = model.predict(obs, deterministic=deterministic)
+        return actions
+
+    return predict

@@ -1,0 +1,218 @@
+"""Students: Stable-Baselines3 SAC and PPO with TeachMyAgent's settings or a CPU-friendly preset.
+
+`benchmark` follows TeachMyAgent §4.4 as closely as SB3 allows (deviations are listed in the
+docs: SB3's SAC has no separate V network and updates every 10 steps instead of at episode end;
+SB3's PPO has separate policy/value MLPs instead of a shared trunk). `fast` keeps the same
+algorithms with small networks and short rollouts so a CPU run shows learning within minutes.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+STUDENTS: tuple[str, ...] = ("sac", "ppo")
+PRESETS: tuple[str, ...] = ("benchmark", "fast")
+
+_ALGOS = {"sac": SAC, "ppo": PPO}
+
+
+def _sac(preset: str, n_envs: int) -> dict[str, Any]:
+    if preset == "benchmark":
+        # SpinningUp SAC v0.1.1: 400-300 ReLU, alpha 0.005 fixed, polyak 0.995, start_steps 10k,
+        # one gradient step per 10 environment steps.
+        return {
+            "policy_kwargs": {"net_arch": [400, 300], "activation_fn": "relu"},
+            "learning_rate": 1e-3,
+            "batch_size": 1000,
+            "buffer_size": 2_000_000,
+            "ent_coef": 0.005,
+            "tau": 0.005,
+            "gamma": 0.99,
+            "learning_starts": 10_000,
+            "train_freq": 10,
+            "gradient_steps": n_envs,
+        }
+    return {
+        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "relu"},
+        "learning_rate": 1e-3,
+        "batch_size": 256,
+        "buffer_size": 300_000,
+        "ent_coef": 0.005,
+        "tau": 0.005,
+        "gamma": 0.99,
+        "learning_starts": 1_000,
+        "train_freq": 4,
+        "gradient_steps": n_envs,
+    }
+
+
+def _ppo(preset: str, n_envs: int) -> dict[str, Any]:
+    if preset == "benchmark":
+        # OpenAI Baselines ppo2 as run by TeachMyAgent: 20k steps per update (split over the
+        # workers), minibatches of 1000, 5 epochs.
+        return {
+            "policy_kwargs": {"net_arch": [400, 300], "activation_fn": "tanh"},
+            "n_steps": max(1, 20_000 // n_envs),
+            "batch_size": 1000,
+            "n_epochs": 5,
+            "learning_rate": 3e-4,
+            "clip_range": 0.2,
+            "vf_coef": 0.5,
+            "ent_coef": 0.0,
+            "gamma": 0.99,
+            "gae_lambda": 0.95,
+            "max_grad_norm": 0.5,
+        }
+    return {
+        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"},
+        "n_steps": max(1, 2048 // n_envs),
+        "batch_size": 256,
+        "n_epochs": 10,
+        "learning_rate": 3e-4,
+        "clip_range": 0.2,
+        "vf_coef": 0.5,
+        "ent_coef": 0.0,
+        "gamma": 0.99,
+        "gae_lambda": 0.95,
+        "max_grad_norm": 0.5,
+    }
+
+
+_ACTIVATIONS = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh, "elu": torch.nn.ELU}
+
+
+def check_student(student: str, preset: str) -> None:
+    if student not in STUDENTS:
+        raise ValueError(f"unknown student {student!r}; valid students: {', '.join(STUDENTS)}")
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(PRESETS)}")
+
+
+def hyperparameters(student: str, preset: str, n_envs: int, overrides=None) -> dict[str, Any]:
+    """SB3 constructor kwargs (JSON-friendly: activation as a name) for a student and preset.
+
+    `overrides` replaces top-level keys (e.g. `{"buffer_size": 100000}`); unknown keys fail.
+    """
+    check_student(student, preset)
+    params = _sac(preset, n_envs) if student == "sac" else _ppo(preset, n_envs)
+    for key, value in (overrides or {}).items():
+        if key not in params and key not in _EXTRA_KEYS[student]:
+            valid = sorted(set(params) | _EXTRA_KEYS[student])
+            raise ValueError(f"unknown student parameter {key!r} for {student}; valid: {valid}")
+        params[key] = value
+    _check_consistency(student, params, n_envs)
+    return params
+
+
+_EXTRA_KEYS = {
+    "sac": {"target_update_interval", "optimize_memory_usage", "use_sde"},
+    "ppo": {"normalize_advantage", "target_kl", "clip_range_vf", "use_sde"},
+}
+
+
+def _check_consistency(student: str, params: dict, n_envs: int) -> None:
+    if student == "ppo":
+        rollout = int(params["n_steps"]) * n_envs
+        if int(params["batch_size"]) > rollout:
+            raise ValueError(
+                f"ppo batch_size ({params['batch_size']}) must be <= n_steps x n_envs "
+                f"({params['n_steps']} x {n_envs} = {rollout})"
+            )
+    else:
+        if int(params["buffer_size"]) < int(params["batch_size"]):
+            raise ValueError(
+                f"sac buffer_size ({params['buffer_size']}) must be >= batch_size "
+                f"({params['batch_size']})"
+            )
+    act = params["policy_kwargs"].get("activation_fn")
+    if isinstance(act, str) and act not in _ACTIVATIONS:
+        raise ValueError(f"activation_fn {act!r} unknown; valid: {', '.join(_ACTIVATIONS)}")
+
+
+def uses_vecnormalize(student: str) -> bool:
+    """TeachMyAgent normalises observations and returns for PPO only (clip 10)."""
+    return student == "ppo"
+
+
+def build(
+    student: str,
+    params: dict[str, Any],
+    env,
+    seed: int,
+    tensorboard_log: str | None = None,
+    device: str = "cpu",
+) -> BaseAlgorithm:
+    """Instantiate the SB3 model from `hyperparameters(...)` output."""
+    kwargs = dict(params)
+    policy_kwargs = dict(kwargs.pop("policy_kwargs"))
+    act = policy_kwargs.get("activation_fn")
+    if isinstance(act, str):
+        policy_kwargs["activation_fn"] = _ACTIVATIONS[act]
+    return _ALGOS[student](
+        "MlpPolicy",
+        env,
+        policy_kwargs=policy_kwargs,
+        seed=seed,
+        tensorboard_log=tensorboard_log,
+        device=device,
+        verbose=0,
+        **kwargs,
+    )
+
+
+def load(student: str, path, env=None, device: str = "cpu") -> BaseAlgorithm:
+    return _ALGOS[student].load(str(path), env=env, device=device)
+
+
+def algorithm_name(model: BaseAlgorithm) -> str:
+    for name, cls in _ALGOS.items():
+        if isinstance(model, cls):
+            return name
+    raise ValueError(f"unsupported model type {type(model).__name__}; valid: SAC, PPO")
+
+
+def value_estimator(model: BaseAlgorithm, normalize_obs=None):
+    """The student's value function V(s) on raw observations, for teachers that need it.
+
+    PPO: the critic on the observations as the policy sees them (normalised by VecNormalize when
+    used; TeachMyAgent fed raw ones, §6.16). SAC: min of the two critics at the policy's
+    deterministic action. Reads `model.policy` at call time, so it follows student resets.
+    """
+
+    def estimate(states) -> np.ndarray:
+        obs = np.asarray(states, dtype=np.float32)
+        if obs.ndim == 1:
+            obs = obs[None]
+        if normalize_obs is not None:
+            obs = normalize_obs(obs)
+        policy = model.policy
+        with torch.no_grad():
+            obs_t = torch.as_tensor(obs, dtype=torch.float32, device=policy.device)
+            if isinstance(model, PPO):
+                values = policy.predict_values(obs_t)
+            else:
+                actions = policy.actor(obs_t, deterministic=True)
+                values = torch.min(torch.cat(policy.critic(obs_t, actions), dim=1), dim=1).values
+        return values.reshape(-1).cpu().numpy()
+
+    return estimate
+
+
+def reinitialise(model: BaseAlgorithm) -> None:
+    """Fresh networks and optimisers (and an empty replay buffer for SAC): a forgetting student."""
+    extra = {"use_sde": model.use_sde} if isinstance(model, PPO) else {}
+    model.policy = model.policy_class(
+        model.observation_space,
+        model.action_space,
+        model.lr_schedule,
+        **extra,
+        **model.policy_kwargs,
+    ).to(model.device)
+    if isinstance(model, SAC):
+        model._create_aliases()
+        model.replay_buffer.reset()
