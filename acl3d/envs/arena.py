@@ -12,7 +12,7 @@ import numpy as np
 
 from acl3d.assets import mjcf_path
 from acl3d.bodies.base import PREFIX, Body, BoundBody
-from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT, START_X, TrackGrid
+from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT, TERRAIN_STEP, TrackGrid, start_pad_for
 
 TRACK_HALF_WIDTH = 2.0  # metres: walls at +-2 m keep full-3D bodies on the track
 HFIELD_BASE_DEPTH = 1.0
@@ -30,6 +30,8 @@ class Arena:
     ):
         self.body = body
         self.grid = grid
+        self.start_pad = start_pad_for(body.length)  # in TS; bodies spawn at its middle
+        self.start_x = TERRAIN_STEP * self.start_pad / 2
         spec = mujoco.MjSpec.from_file(str(mjcf_path(template)))
         half_length = (grid.x_max - grid.x_min) / 2
         centre_x = (grid.x_max + grid.x_min) / 2
@@ -51,7 +53,7 @@ class Arena:
             pos=[1.5, -camera_distance, 1.0],
             xyaxes=[1, 0, 0, 0, 0.15, 1],
         )
-        frame = spec.worldbody.add_frame(pos=[START_X, 0.0, body.spawn_height])
+        frame = spec.worldbody.add_frame(pos=[self.start_x, 0.0, body.spawn_height])
         spec.attach(body_spec, prefix=PREFIX, frame=frame)
         self.spec = spec
         self.model = spec.compile()

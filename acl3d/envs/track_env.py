@@ -21,7 +21,6 @@ from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
 from acl3d.rendering import TrackRenderer
 from acl3d.task_space import TaskSpace
 from acl3d.terrain.tracks import (
-    START_X,
     TrackGenerator,
     TrackGrid,
     check_buildable,
@@ -187,10 +186,10 @@ class TrackEnv(gym.Env):
 
     # ------------------------------------------------------------------ internals
     def _new_terrain(self) -> None:
-        self.arena.write_heights(self.generator.profile(self.get_task(), self.np_random))
+        self.arena.write_heights(self.generator.profile(self.get_task(), self.np_random, self.arena.start_pad))
 
     def _place_body(self) -> None:
-        self.bound.place(self.data, START_X, self.body.spawn_height)
+        self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)
         push = self.np_random.uniform(-INIT_PUSH, INIT_PUSH)
         # the one-off horizontal force of the original, as the velocity change it gives in one step
         self.data.qvel[self.bound.root_dof] = push * CONTROL_DT / self.bound.total_mass

@@ -18,7 +18,7 @@ from acl3d.task_space import TaskParameter, TaskSpace
 TERRAIN_STEP = 14 / 30  # TS, metres
 TERRAIN_LENGTH = 200  # in TS: the obstacle course ends at 200 TS = 93.33 m
 START_PAD = 20  # in TS: 9.33 m of flat start pad
-START_X = TERRAIN_STEP * START_PAD / 2  # 4.67 m, where bodies spawn
+START_X = TERRAIN_STEP * START_PAD / 2  # 4.67 m, where bodies spawn (default start pad)
 END_X = (TERRAIN_LENGTH - 10) * TERRAIN_STEP  # 88.67 m, crossing it ends the episode (success)
 NOISE_STD = 0.1  # per-obstacle noise on the task means, as in the original
 MIN_OBSTACLE = 0.05  # floor on drawn heights/widths (in their own units)
@@ -91,6 +91,11 @@ _BUILDABLE = {
     "stump_seq": (0.0, _MAX_STUMP_HEIGHT_TS),
     "poly_shape": (-1.0, (MAX_TERRAIN_HEIGHT - 1.0) / TERRAIN_STEP - 0.5),
 }
+
+
+def start_pad_for(body_length: float) -> int:
+    """Start pad in TS: 20, widened to body length / TS + 5 for long bodies (as the original)."""
+    return max(START_PAD, int(np.ceil(body_length / TERRAIN_STEP)) + 5)
 
 
 def track_task_space(names) -> TaskSpace:
@@ -178,12 +183,13 @@ class TrackGenerator:
         y = _convex_upper_envelope(polygon, self.x[cols])
         np.fmax(heights[cols], y, out=heights[cols])
 
-    def profile(self, task: Mapping[str, object], rng: np.random.Generator) -> np.ndarray:
+    def profile(self, task: Mapping[str, object], rng: np.random.Generator, start_pad: int = START_PAD) -> np.ndarray:
         """Heights (metres above the flat ground) at `self.x` for one episode.
 
         `task` holds the parameters to use; obstacle kinds present among stump_height, stump_seq
         and poly_shape alternate uniformly at random (as the original), separated by
-        `obstacle_spacing` metres of flat ground, from the end of the start pad to 200 TS.
+        `obstacle_spacing` metres of flat ground, from the end of the start pad (`start_pad` TS,
+        widened for long bodies) to 200 TS.
         """
         heights = np.zeros_like(self.x)
         kinds = [k for k in ("stump_height", "stump_seq", "poly_shape") if k in task]
@@ -192,7 +198,7 @@ class TrackGenerator:
         spacing = float(
             task.get("obstacle_spacing", TRACK_PARAMETERS["obstacle_spacing"].default[0])
         )
-        x = START_PAD * TERRAIN_STEP
+        x = start_pad * TERRAIN_STEP
         end = TERRAIN_LENGTH * TERRAIN_STEP
         while x < end:
             kind = kinds[int(rng.integers(len(kinds)))] if len(kinds) > 1 else kinds[0]
