@@ -61,6 +61,7 @@ class Body:
     spawn_height: ClassVar[float]  # root height above the ground at spawn, metres
     length: ClassVar[float] = 2.0  # extent along x, to size the start pad
     grasp_sensors: ClassVar[tuple[GraspSensor, ...]] = ()
+    frame_skip: ClassVar[int] = 2  # physics steps per 50 Hz control step (timestep 0.02 / frame_skip)
 
     def __init__(self, planar: bool | None = None):
         self.planar = self.planar_default if planar is None else bool(planar)

@@ -44,7 +44,7 @@ class TrackEnv(gym.Env):
         planar: sagittal-plane joints (True) or a free-floating 3D body (False); default per body.
         task_parameters: which track parameters form the task space (default per track kind).
         body_options: options of the body (e.g. leg counts), validated by the body.
-        frame_skip: physics steps per control step (timestep = 0.02 / frame_skip).
+        frame_skip: physics steps per control step (timestep = 0.02 / frame_skip); default per body.
         render_mode, width, height, camera, quality: offscreen rendering ("fast" or "high").
     """
 
@@ -57,7 +57,7 @@ class TrackEnv(gym.Env):
         planar: bool | None = None,
         task_parameters: tuple[str, ...] | None = None,
         body_options: Mapping | None = None,
-        frame_skip: int = 4,
+        frame_skip: int | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
@@ -68,14 +68,15 @@ class TrackEnv(gym.Env):
             raise ValueError(f"track={track!r}; valid: {list(TRACKS)}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}; valid: None, 'rgb_array'")
-        if not isinstance(frame_skip, int) or not 1 <= frame_skip <= 20:
-            raise ValueError(f"frame_skip={frame_skip!r}; valid: an integer in [1, 20]")
         self.track = track
         self.body = (
             body
             if isinstance(body, Body)
             else make_body(body, planar=planar, **dict(body_options or {}))
         )
+        frame_skip = self.body.frame_skip if frame_skip is None else frame_skip
+        if not isinstance(frame_skip, int) or not 1 <= frame_skip <= 20:
+            raise ValueError(f"frame_skip={frame_skip!r}; valid: an integer in [1, 20]")
         self.task_space: TaskSpace = track_task_space(task_parameters or TRACKS[track])
         self.generator = TrackGenerator(TrackGrid())
         self.frame_skip = frame_skip
