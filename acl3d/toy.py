@@ -96,9 +96,35 @@ class ToyEnv:
             reward += self.noise * self.rng.standard_normal()
         return float(reward)
 
+    def competence_map(self) -> np.ndarray:
+        """Competence over the first two dimensions (mean over the others), for plots."""
+        c = self.competence.astype(np.float64)
+        if self.nb_dims == 1:
+            return c[:, None]
+        return c.mean(axis=tuple(range(2, self.nb_dims))) if self.nb_dims > 2 else c
+
     def score(self) -> float:
         """Percentage of cubes with competence > 75."""
         return float(100.0 * (self.competence > MASTERED).mean())
+
+
+def toy_teacher_params(name: str, env: ToyEnv) -> dict:
+    """What reward-threshold teachers need on the toy, whose returns are competences in [0, 1].
+
+    ADR expands a bound whose boundary episodes average >= 0.75 (mastered) and shrinks it when
+    they all return 0 (a locked cube); it starts at the origin corner, the toy's expert knowledge
+    (ADR needs a feasible start). The oracle moves its window once the window averages > 0.75.
+    """
+    if name == "adr":
+        d = env.task_dim
+        return {
+            "min_reward_thr": 0.0,
+            "max_reward_thr": SUCCESS_REWARD,
+            "initial_dist": {"mean": np.zeros(d), "variance": np.eye(d) * 1e-4},
+        }
+    if name == "oracle":
+        return {"reward_thr": SUCCESS_REWARD}
+    return {}
 
 
 @dataclass

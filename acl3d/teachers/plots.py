@@ -1,0 +1,207 @@
+"""GIFs of a teacher's sampling dynamics, drawn from a small, teacher-agnostic protocol.
+
+A teacher may define `plot_state() -> dict | None` describing its current distribution:
+  {"kind": "gmm", "means": (k, d), "covariances": (k, d, d), "weights": (k,)}  (2-sigma ellipses)
+  {"kind": "boxes", "boxes": [(low, high, value), ...]}  (regions coloured by value, e.g. ALP)
+  {"kind": "box", "low": (d,), "high": (d,)}  (one box: ADR's range, the oracle's window)
+  {"kind": "gaussian", "mean": (d,), "covariance": (d, d)}  (1- and 2-sigma ellipses)
+  {"kind": "lesson", "index": int, "tasks": (n, d)}  (a list of lessons, the current one marked)
+Anything else (or no plot_state) gives a plain scatter of the sampled tasks. Frames show the first
+two task dimensions (a 1-D space is drawn on a line) over an optional background grid, such as the
+toy environment's competence map.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _plot_state(teacher) -> dict[str, Any] | None:
+    fn = getattr(teacher, "plot_state", None)
+    return fn() if callable(fn) else None
+
+
+class SamplingRecorder:
+    """Observer for `acl3d.toy.run_teacher`: one frame per `every` episodes.
+
+    Each frame pairs the teacher's state at the start of a window with the tasks sampled during
+    it (the tasks that state generated) and their returns.
+    """
+
+    def __init__(
+        self, teacher, every: int = 250, background: Callable[[], np.ndarray] | None = None
+    ):
+        if every < 1:
+            raise ValueError(f"every must be >= 1 episode, got {every!r}")
+        self.teacher, self.every, self.background = teacher, int(every), background
+        self.frames: list[dict[str, Any]] = []
+        self._state = _plot_state(teacher)
+        self._tasks: list[np.ndarray] = []
+        self._values: list[float] = []
+
+    def __call__(self, episode: int, task, reward: float) -> None:
+        self._tasks.append(np.asarray(task, dtype=np.float64))
+        self._values.append(float(reward))
+        if (episode + 1) % self.every == 0:
+            self.frames.append(
+                {
+                    "episode": episode + 1,
+                    "state": self._state,
+                    "tasks": np.asarray(self._tasks),
+                    "values": np.asarray(self._values),
+                    "background": None
+                    if self.background is None
+                    else np.array(self.background(), dtype=np.float64),
+                }
+            )
+            self._state = _plot_state(self.teacher)
+            self._tasks, self._values = [], []
+
+
+def _xy(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    points = np.atleast_2d(points)
+    if points.shape[1] >= 2:
+        return points[:, 0], points[:, 1]
+    return points[:, 0], np.full(len(points), 0.5)
+
+
+def _ellipse(ax, mean, cov, n_sigma: float, **kw) -> None:
+    from matplotlib.patches import Ellipse
+
+    x, y = _xy(np.asarray(mean)[None])
+    cov = np.asarray(cov, dtype=np.float64)
+    cov2 = cov[:2, :2] if cov.shape[0] >= 2 else np.array([[cov[0, 0], 0.0], [0.0, 0.0]])
+    vals, vecs = np.linalg.eigh(cov2)
+    vals = np.maximum(vals, 0.0)
+    angle = np.degrees(np.arctan2(vecs[1, -1], vecs[0, -1]))
+    width, height = 2 * n_sigma * np.sqrt(vals[-1]), 2 * n_sigma * np.sqrt(vals[0])
+    ax.add_patch(Ellipse((x[0], y[0]), width, height, angle=angle, **kw))
+
+
+def _rect(ax, low, high, **kw) -> None:
+    from matplotlib.patches import Rectangle
+
+    (x0,), (y0,) = _xy(np.asarray(low)[None])
+    (x1,), (y1,) = _xy(np.asarray(high)[None])
+    if np.asarray(low).shape[0] < 2:
+        y0, y1 = 0.0, 1.0
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, **kw))
+
+
+def _draw_state(fig, ax, state: dict[str, Any] | None) -> str:
+    """Draw one plot_state; returns a short title suffix."""
+    import matplotlib as mpl
+
+    if not state:
+        return ""
+    kind = state.get("kind")
+    if kind == "gmm":
+        weights = np.asarray(state["weights"], dtype=np.float64)
+        norm = weights / weights.max() if weights.max() > 0 else np.zeros_like(weights)
+        cmap = mpl.colormaps["viridis"]
+        for mean, cov, w in zip(state["means"], state["covariances"], norm):
+            _ellipse(ax, mean, cov, 2.0, facecolor=cmap(w), edgecolor="k", alpha=0.6, lw=0.5)
+        return f" | nb Gaussians: {len(weights)}"
+    if kind == "boxes":
+        boxes = state["boxes"]
+        values = np.array([b[2] for b in boxes], dtype=np.float64)
+        norm = mpl.colors.Normalize(0.0, values.max() if len(values) and values.max() > 0 else 1.0)
+        cmap = mpl.colormaps["jet"]
+        for low, high, value in boxes:
+            _rect(ax, low, high, facecolor=cmap(norm(value)), edgecolor="white", lw=0.8, alpha=0.8)
+        fig.colorbar(
+            mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="Absolute Learning Progress"
+        )
+        return f" | {len(boxes)} regions"
+    if kind == "box":
+        _rect(ax, state["low"], state["high"], facecolor=(1, 0, 0, 0.15), edgecolor="red", lw=2)
+        return ""
+    if kind == "gaussian":
+        for n_sigma, alpha in ((1.0, 0.5), (2.0, 0.25)):
+            _ellipse(
+                ax,
+                state["mean"],
+                state["covariance"],
+                n_sigma,
+                facecolor="tab:blue",
+                edgecolor="k",
+                alpha=alpha,
+            )
+        return ""
+    if kind == "lesson":
+        tasks = np.atleast_2d(np.asarray(state["tasks"], dtype=np.float64))
+        x, y = _xy(tasks)
+        ax.plot(x, y, "o--", color="0.4", ms=4, lw=0.8)
+        i = int(state["index"])
+        if 0 <= i < len(tasks):
+            ax.plot(x[i], y[i], "*", color="red", ms=16, mec="k")
+        return f" | lesson {i + 1}/{len(tasks)}"
+    return ""
+
+
+def render_frame(
+    frame: dict[str, Any], low, high, labels=("task[0]", "task[1]"), title: str = ""
+) -> np.ndarray:
+    """One frame as an (H, W, 3) uint8 image."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    x_lim = (low[0], high[0] if high[0] > low[0] else low[0] + 1.0)
+    y_lim = (low[1], high[1] if high[1] > low[1] else low[1] + 1.0) if len(low) >= 2 else (0.0, 1.0)
+    fig, ax = plt.subplots(figsize=(5.6, 4.8), dpi=80)
+    try:
+        bg = frame.get("background")
+        if bg is not None:
+            ax.imshow(
+                np.asarray(bg).T,
+                origin="lower",
+                extent=(*x_lim, *y_lim),
+                cmap="Greys",
+                vmin=0,
+                vmax=100,
+                alpha=0.3,
+                aspect="auto",
+            )
+        suffix = _draw_state(fig, ax, frame.get("state"))
+        tasks = frame.get("tasks")
+        if tasks is not None and len(tasks):
+            x, y = _xy(tasks)
+            values = np.asarray(frame.get("values", np.zeros(len(tasks))))
+            ax.scatter(x, y, c=values, cmap="autumn_r", s=6, edgecolors="none", zorder=3)
+        ax.set_xlim(*x_lim)
+        ax.set_ylim(*y_lim)
+        ax.set_xlabel(labels[0])
+        ax.set_ylabel(labels[1] if len(labels) > 1 else "")
+        ax.set_title(f"{title}Episode {frame['episode']}{suffix}")
+        fig.canvas.draw()
+        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    finally:
+        plt.close(fig)
+
+
+def write_gif(
+    frames: list[dict[str, Any]],
+    path,
+    low,
+    high,
+    labels=("task[0]", "task[1]"),
+    title: str = "",
+    frame_seconds: float = 0.4,
+) -> Path:
+    """Render `frames` (from SamplingRecorder) into an animated GIF at `path`."""
+    import imageio.v2 as imageio
+
+    if not frames:
+        raise ValueError("no frames to write: record at least `every` episodes")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images = [render_frame(f, low, high, labels, title) for f in frames]
+    imageio.mimsave(path, images, duration=frame_seconds * 1000, loop=0)
+    return path
