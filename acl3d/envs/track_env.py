@@ -84,6 +84,7 @@ class TrackEnv(gym.Env):
         self.model, self.bound = self.arena.model, self.arena.bound
         self.model.opt.timestep = CONTROL_DT / frame_skip
         self.data = mujoco.MjData(self.model)
+        self._warning_counts = self.data.warning.number  # a live view
         self.task = self._make_task()
 
         self.action_space = gym.spaces.Box(
@@ -93,9 +94,9 @@ class TrackEnv(gym.Env):
             -np.inf, np.inf, shape=(self.task.obs_size,), dtype=np.float32
         )
         self._speeds = self.bound.speeds
-        self._force = self.model.actuator_forcerange[self.bound.actuator_ids]
         self._forcerange = self.model.actuator_forcerange
         self._ctrl_ids = self.bound.actuator_ids
+        self._nb_motors = len(self._speeds)
         self._task_vector = self.task_space.to_vector({})
         self._episode_return = 0.0
         self._warnings = 0
@@ -197,13 +198,15 @@ class TrackEnv(gym.Env):
 
     def _apply_action(self, action: np.ndarray) -> None:
         """Velocity servos towards speed*sign(a) with torque capped at torque*|a| (Box2D motor semantics)."""
-        magnitude = np.minimum(np.abs(action[: len(self._speeds)]), 1.0) * self.body.torque
+        motors = action[: self._nb_motors]
+        magnitude = np.minimum(np.abs(motors), 1.0) * self.body.torque
         self._forcerange[self._ctrl_ids, 0] = -magnitude
         self._forcerange[self._ctrl_ids, 1] = magnitude
-        self.data.ctrl[self._ctrl_ids] = self._speeds * np.sign(action[: len(self._speeds)])
+        self.data.ctrl[self._ctrl_ids] = self._speeds * np.sign(motors)
 
     def _check_instability(self) -> bool:
-        count = int(self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
+        """MuJoCo resets a diverged simulation and counts it; end the episode when that happens."""
+        count = int(self._warning_counts[mujoco.mjtWarning.mjWARN_BADQACC])
         unstable = count > self._warnings
         self._warnings = count
         return unstable

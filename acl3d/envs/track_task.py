@@ -34,6 +34,13 @@ class TrackTask:
             self.head_size + bound.motor_state_size + lidar.nb_rays + self.extra_obs_size()
         )
         self._touched = np.zeros(bound.model.ngeom, dtype=bool)
+        # where each motor's entries sit in the motor state (a contact flag follows some angles/speeds)
+        width = 2 + bound.has_contact_flag.astype(int)
+        starts = np.concatenate(([0], np.cumsum(width)[:-1]))
+        self._angle_pos, self._speed_pos = starts, starts + 1
+        self._contact_pos = (starts + 2)[bound.has_contact_flag]
+        self._inv_speeds = 1.0 / bound.speeds
+        self._motor_buffer = np.zeros(int(width.sum()))
         self.prev_shaping = 0.0
         self.critical_contact = False
 
@@ -80,18 +87,13 @@ class TrackTask:
         return float(data.xpos[b.root_id, 0]), head
 
     def motor_state(self, data: mujoco.MjData, touched: np.ndarray) -> np.ndarray:
+        """Per motor [angle + correction, speed / servo speed, (contact flag)], as the original."""
         b = self.bound
-        angles = data.qpos[b.qpos_adr] + b.angle_correction
-        speeds = data.qvel[b.dof_adr] / b.speeds
-        if not b.has_contact_flag.any():
-            return np.stack([angles, speeds], axis=1).ravel()
-        parts = []
-        contacts = iter(touched[b.contact_geom_ids].astype(np.float64))
-        for i, flag in enumerate(b.has_contact_flag):
-            parts.extend((angles[i], speeds[i]))
-            if flag:
-                parts.append(next(contacts))
-        return np.asarray(parts)
+        out = self._motor_buffer
+        out[self._angle_pos] = data.qpos[b.qpos_adr] + b.angle_correction
+        out[self._speed_pos] = data.qvel[b.dof_adr] * self._inv_speeds
+        out[self._contact_pos] = touched[b.contact_geom_ids]
+        return out
 
     # ------------------------------------------------------------------ episode logic
     def shaping(self, x: float, angle: float) -> float:
