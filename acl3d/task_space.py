@@ -215,6 +215,31 @@ class TaskSpace:
             parts.append(arr)
         return np.concatenate(parts) if parts else np.zeros(0)
 
+    def parse(self, text: str) -> dict[str, float | np.ndarray]:
+        """Parse a CLI task: `"a=1.5,b=3"` (vector values as `v=0:1:2`) or a JSON object."""
+        import json
+
+        text = text.strip()
+        if text.startswith("{"):
+            task = json.loads(text)
+        else:
+            task = {}
+            for item in filter(None, (t.strip() for t in text.split(","))):
+                if "=" not in item:
+                    raise ValueError(
+                        f"task item {item!r}: expected name=value; parameters: {list(self.names)}"
+                    )
+                name, value = (t.strip() for t in item.split("=", 1))
+                try:
+                    numbers = [float(v) for v in value.split(":")]
+                except ValueError:
+                    raise ValueError(
+                        f"task parameter {name!r}: {value!r} is not a number"
+                    ) from None
+                task[name] = numbers[0] if len(numbers) == 1 else np.array(numbers)
+        self.to_vector(task)  # validates names, sizes and finiteness
+        return task
+
     def validate_vector(self, vector) -> np.ndarray:
         """Check shape and finiteness of a flat task vector; return it as float64."""
         vec = np.asarray(vector, dtype=np.float64)
