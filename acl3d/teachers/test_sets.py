@@ -1,0 +1,177 @@
+"""Fixed evaluation task sets: build, load, save and check them against a task space.
+
+A test set is an (N, d) float array of tasks in task-space order. Test tasks only need the right
+dimension and finite values: like TeachMyAgent's sets they may lie outside the training bounds.
+
+Files are open formats:
+* JSON: {"names": [flat names], "tasks": [[...], ...]} or a list of {parameter: value} dicts
+  (missing parameters take their default);
+* CSV: a header of flat names (`name` or `name[i]`), one task per row.
+Columns are matched by name, so their order in the file does not matter.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from acl3d.task_space import TaskSpace
+
+# TeachMyAgent's Stump Tracks test set: this grid whatever the training bounds (reference §4.1).
+STUMP_GRID_RANGES = {"stump_height": (0.0, 3.0), "obstacle_spacing": (0.0, 6.0)}
+UNIFORM_SEED = 31
+
+
+def validate(tasks, task_space) -> np.ndarray:
+    """Check an (N, d) array of finite tasks; return it as float64."""
+    space = TaskSpace.coerce(task_space)
+    try:
+        arr = np.asarray(tasks, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("test set: expected an (N, d) array of numbers") from None
+    if arr.ndim != 2 or arr.shape[1] != space.dim or arr.shape[0] == 0:
+        raise ValueError(
+            f"test set: expected shape (N >= 1, {space.dim}) for {space.flat_names()}, got {arr.shape}"
+        )
+    bad = np.argwhere(~np.isfinite(arr))
+    if len(bad):
+        i, j = bad[0]
+        raise ValueError(
+            f"test set: non-finite value in task {i}, dimension {space.flat_names()[j]!r}"
+        )
+    return arr
+
+
+def _points_per_dim(nb_tasks: int, n_free: int) -> int:
+    k = int(math.floor(nb_tasks ** (1.0 / n_free) + 1e-9))
+    if k < 2:
+        raise ValueError(
+            f"grid test set: nb_tasks={nb_tasks} gives fewer than 2 points per dimension over {n_free} varying dimensions; use a larger nb_tasks or 'uniform'"
+        )
+    return k
+
+
+def grid(
+    task_space, nb_tasks: int = 100, ranges: Mapping[str, tuple[float, float]] | None = None
+) -> np.ndarray:
+    """A regular grid, first dimension varying fastest, floor(nb_tasks^(1/d')) points per varying
+    dimension (d' = dimensions with min < max; constant ones keep their value).
+
+    `ranges` overrides the bounds of named 1-D parameters (the Stump Tracks set uses this)."""
+    space = TaskSpace.coerce(task_space)
+    low, high = space.low.copy(), space.high.copy()
+    for name, (lo, hi) in (ranges or {}).items():
+        low[space.slice(name)], high[space.slice(name)] = lo, hi
+    free = high > low
+    if not free.any():
+        return low[None, :].copy()
+    k = _points_per_dim(nb_tasks, int(free.sum()))
+    axes = [np.linspace(lo, hi, k) if f else np.array([lo]) for lo, hi, f in zip(low, high, free)]
+    return np.array([combo[::-1] for combo in itertools.product(*axes[::-1])], dtype=np.float64)
+
+
+def uniform(task_space, nb_tasks: int = 100, seed: int = UNIFORM_SEED) -> np.ndarray:
+    """`nb_tasks` uniform tasks within the bounds from numpy's default_rng(seed)."""
+    space = TaskSpace.coerce(task_space)
+    if nb_tasks < 1:
+        raise ValueError(f"nb_tasks must be >= 1, got {nb_tasks}")
+    return np.random.default_rng(seed).uniform(space.low, space.high, size=(nb_tasks, space.dim))
+
+
+def default(task_space, nb_tasks: int = 100) -> np.ndarray:
+    """TeachMyAgent's rule: the fixed Stump Tracks grid for the 2-D stump space, else uniform."""
+    space = TaskSpace.coerce(task_space)
+    if set(space.names) == set(STUMP_GRID_RANGES) and space.dim == 2:
+        return grid(space, nb_tasks, STUMP_GRID_RANGES)
+    return uniform(space, nb_tasks)
+
+
+def _reorder(names: list[str], rows, space: TaskSpace, where: str) -> np.ndarray:
+    flat = space.flat_names()
+    missing = [n for n in flat if n not in names]
+    unknown = [n for n in names if n not in flat]
+    if missing or unknown or len(names) != len(set(names)):
+        raise ValueError(
+            f"{where}: columns {names} must be exactly the task dimensions {flat} (missing {missing}, unknown {unknown})"
+        )
+    try:
+        arr = np.asarray(rows, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: tasks must be rows of numbers") from None
+    if arr.ndim != 2 or arr.shape[1] != len(names):
+        raise ValueError(f"{where}: expected rows of {len(names)} values, got shape {arr.shape}")
+    return arr[:, [names.index(n) for n in flat]]
+
+
+def load(path, task_space) -> np.ndarray:
+    """Read a .json or .csv test set (see the module docstring) and validate it."""
+    space = TaskSpace.coerce(task_space)
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"test set file {str(path)!r} does not exist")
+    where = f"test set {str(path)!r}"
+    if path.suffix == ".json":
+        data = json.loads(path.read_text())
+        if isinstance(data, Mapping):
+            if "names" not in data or "tasks" not in data:
+                raise ValueError(
+                    f'{where}: expected {{"names": [...], "tasks": [[...]]}} or a list of dicts'
+                )
+            arr = _reorder(list(data["names"]), data["tasks"], space, where)
+        elif isinstance(data, list) and all(isinstance(t, Mapping) for t in data):
+            arr = np.array([space.to_vector(t) for t in data])
+        else:
+            raise ValueError(
+                f'{where}: expected {{"names": [...], "tasks": [[...]]}} or a list of dicts'
+            )
+    elif path.suffix == ".csv":
+        with path.open(newline="") as fh:
+            rows = list(csv.reader(fh))
+        if not rows:
+            raise ValueError(f"{where}: empty file")
+        body = [r for r in rows[1:] if r]
+        try:
+            values = [[float(v) for v in r] for r in body]
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        arr = _reorder([h.strip() for h in rows[0]], values, space, where)
+    else:
+        raise ValueError(f"{where}: expected a .json or .csv file")
+    return validate(arr, space)
+
+
+def save(path, tasks, task_space) -> None:
+    """Write a test set as .json ({"names", "tasks"}) or .csv (header of flat names)."""
+    space = TaskSpace.coerce(task_space)
+    arr = validate(tasks, space)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix == ".json":
+        path.write_text(json.dumps({"names": space.flat_names(), "tasks": arr.tolist()}))
+    elif path.suffix == ".csv":
+        with path.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(space.flat_names())
+            writer.writerows([repr(float(v)) for v in row] for row in arr)
+    else:
+        raise ValueError(f"test set file {str(path)!r}: expected a .json or .csv suffix")
+
+
+def resolve(test_set, task_space, nb_tasks: int = 100) -> np.ndarray:
+    """None (default rule), "grid", "uniform", a .json/.csv path, or an array -> validated tasks."""
+    space = TaskSpace.coerce(task_space)
+    if test_set is None:
+        return default(space, nb_tasks)
+    if isinstance(test_set, str) and test_set == "grid":
+        return grid(space, nb_tasks)
+    if isinstance(test_set, str) and test_set == "uniform":
+        return uniform(space, nb_tasks)
+    if isinstance(test_set, (str, Path)):
+        return load(test_set, space)
+    return validate(test_set, space)
