@@ -27,7 +27,8 @@ from acl3d.task_space import TaskSpace
 from acl3d.teachers import make
 from acl3d.teachers import test_sets as test_sets_mod
 from acl3d.teachers.base import load_state, save_state
-from acl3d.teachers.expert_knowledge import canonical_env_name, expert_knowledge as expert_kwargs
+from acl3d.teachers.expert_knowledge import canonical_env_name
+from acl3d.teachers.expert_knowledge import expert_knowledge as expert_kwargs
 
 # Returns are mapped linearly from these bounds to [0, 1] (and clamped) when scale_reward is on.
 REWARD_BOUNDS = {
