@@ -114,6 +114,8 @@ def toy_teacher_params(name: str, env: ToyEnv) -> dict:
     ADR expands a bound whose boundary episodes average >= 0.75 (mastered) and shrinks it when
     they all return 0 (a locked cube); it starts at the origin corner, the toy's expert knowledge
     (ADR needs a feasible start). The oracle moves its window once the window averages > 0.75.
+    Self-paced schedules count environment steps; a toy episode is one step, so they are rescaled
+    to update every 250 episodes after the first 1000.
     """
     if name == "adr":
         d = env.task_dim
@@ -124,6 +126,8 @@ def toy_teacher_params(name: str, env: ToyEnv) -> dict:
         }
     if name == "oracle":
         return {"reward_thr": SUCCESS_REWARD}
+    if name == "self-paced":
+        return {"update_frequency": 250, "update_offset": 1000}
     return {}
 
 

@@ -1,0 +1,163 @@
+"""The toy environment, the teacher runner, the sampling GIFs, `acl3d toy` and the bench script."""
+
+from __future__ import annotations
+
+import runpy
+import sys
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+
+from acl3d.cli import main
+from acl3d.teachers import make
+from acl3d.teachers.plots import SamplingRecorder, render_frame, write_gif
+from acl3d.toy import ToyEnv, run_teacher
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_competence_spreads_from_the_origin_corner():
+    env = ToyEnv(nb_dims=2, nb_cubes=10)
+    assert env.episode([0.55, 0.55]) == 0.0  # locked: no mastered previous neighbour
+    rewards = [env.episode([0.05, 0.05]) for _ in range(80)]
+    assert rewards[0] == 0.01 and rewards[-1] == 0.80
+    assert env.score() == 1.0  # one cube of 100 is above 75
+    assert env.episode([0.15, 0.05]) == 0.01  # (1, 0) unlocked by (0, 0)
+    assert env.episode([0.15, 0.15]) == 0.01  # diagonal neighbour counts too
+    assert env.episode([0.25, 0.05]) == 0.0  # (2, 0) still locked
+    assert env.episode([1.0, 1.0]) == 0.0  # the upper bound belongs to the last cube
+
+
+def test_toy_dimensions_noise_and_input_checks():
+    env = ToyEnv(nb_dims=3, nb_cubes=4, nb_irrelevant_dims=2)
+    space = env.task_space()
+    assert space.dim == 5 and np.all(space.low == 0) and np.all(space.high == 1)
+    assert env.episode([0.1, 0.1, 0.1, 0.9, 0.3]) == env.episode([0.1, 0.1, 0.1, 0.2, 0.7]) - 0.01
+    with pytest.raises(ValueError, match="length 5"):
+        env.episode([0.1, 0.1, 0.1])
+    with pytest.raises(ValueError, match="nb_cubes"):
+        ToyEnv(nb_cubes=0)
+    a = [ToyEnv(noise=0.1, seed=7).episode([0.0, 0.0]) for _ in range(2)]
+    assert a[0] == a[1] and a[0] != 0.01
+    assert env.competence_map().shape == (4, 4)
+
+
+def test_run_teacher_scores_and_cpu_accounting():
+    env = ToyEnv(seed=0)
+    teacher = make("random", env.task_space(), seed=0)
+    seen = []
+    run = run_teacher(teacher, env, 2500, score_every=1000, observer=lambda i, t, r: seen.append(i))
+    assert run.episodes == [1000, 2000] and len(run.scores) == 2
+    assert seen == list(range(2500)) and teacher.nb_episodes == 2500
+    assert run.teacher_cpu_s > 0 and run.cpu_per_1000 == pytest.approx(
+        1000 * run.teacher_cpu_s / 2500
+    )
+    with pytest.raises(ValueError, match="dimension"):
+        run_teacher(make("random", {"x": [0, 1]}, seed=0), env, 10)
+
+
+def test_toy_cli_prints_scores_and_writes_a_gif(tmp_path, capsys):
+    gif = tmp_path / "riac.gif"
+    code = main(
+        [
+            "toy",
+            "--teacher",
+            "riac",
+            "--episodes",
+            "600",
+            "--seed",
+            "0",
+            "--score-every",
+            "300",
+            "--gif",
+            str(gif),
+            "--gif-every",
+            "200",
+            "--param",
+            "max_region_size=40",
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "episode     300" in out and "% mastered cubes" in out
+    frames = imageio.mimread(gif)
+    assert len(frames) == 3 and frames[0].ndim == 3
+
+
+def test_toy_cli_rejects_bad_parameters(capsys):
+    assert main(["toy", "--teacher", "alp-gmm", "--episodes", "10", "--param", "bogus=1"]) == 2
+    assert "bogus" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "state",
+    [
+        None,
+        {
+            "kind": "gmm",
+            "means": np.array([[0.2, 0.3], [0.7, 0.6]]),
+            "covariances": np.array([np.eye(2) * 0.01, np.diag([0.02, 0.0])]),
+            "weights": np.array([0.5, 0.0]),
+        },
+        {
+            "kind": "boxes",
+            "boxes": [(np.zeros(2), np.ones(2), 0.0), (np.zeros(2), np.array([0.5, 1.0]), 0.3)],
+        },
+        {"kind": "box", "low": np.array([0.1, 0.1]), "high": np.array([0.4, 0.3])},
+        {
+            "kind": "gaussian",
+            "mean": np.array([0.5, 0.5]),
+            "covariance": np.array([[0.02, 0.01], [0.01, 0.03]]),
+        },
+        {"kind": "lesson", "index": 1, "tasks": np.array([[0.1, 0.1], [0.5, 0.5], [0.9, 0.9]])},
+    ],
+    ids=["scatter", "gmm", "boxes", "box", "gaussian", "lesson"],
+)
+def test_every_plot_kind_renders(state):
+    frame = {
+        "episode": 10,
+        "state": state,
+        "tasks": np.random.default_rng(0).random((20, 2)),
+        "values": np.linspace(0, 1, 20),
+        "background": np.zeros((10, 10)),
+    }
+    image = render_frame(frame, [0, 0], [1, 1])
+    assert image.dtype == np.uint8 and image.ndim == 3 and image.std() > 0
+
+
+def test_gif_of_a_one_dimensional_teacher(tmp_path):
+    teacher = make("adr", {"x": [0.0, 1.0]}, seed=0, min_reward_thr=0.0, max_reward_thr=0.5)
+    recorder = SamplingRecorder(teacher, every=20)
+    for i in range(60):
+        task = teacher.sample_task()
+        teacher.episodic_update(task, 1.0)
+        recorder(i, task, 1.0)
+    path = write_gif(recorder.frames, tmp_path / "adr.gif", [0.0], [1.0], ["x"])
+    assert len(imageio.mimread(path)) == 3
+    with pytest.raises(ValueError, match="no frames"):
+        write_gif([], tmp_path / "none.gif", [0.0], [1.0])
+
+
+def test_bench_script_quick_run(capsys, monkeypatch):
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "bench_teachers.py",
+            "--seeds",
+            "1",
+            "--episodes",
+            "1000",
+            "--teachers",
+            "random,riac",
+            "--preset",
+            "teachdeeprl",
+        ],
+    )
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_path(str(ROOT / "scripts" / "bench_teachers.py"), run_name="__main__")
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert "| riac | teachdeeprl |" in out and "| random | teachdeeprl |" in out
