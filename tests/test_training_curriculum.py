@@ -70,7 +70,7 @@ class RecordingController:
     def record_episode(self, task, episode_return, length, success, initial_obs=None):
         self.recorded.append((np.asarray(task), episode_return, length, success, initial_obs))
 
-    def record_step(self, state, action, reward, next_state, done):
+    def record_step(self, state, action, reward, next_state, done, worker=0):
         self.steps += 1
 
 

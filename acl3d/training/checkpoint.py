@@ -2,7 +2,7 @@
 
 Everything except SB3's own model zip is JSON + NPZ (acl3d.teachers.save_state), so a run can be
 inspected or resumed without unpickling. A model `X.zip` keeps its normalisation statistics
-beside it as `X.vecnormalize.json/.npz`.
+beside it as `X_vecnormalize.json/.npz`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ _RMS = ("mean", "var", "count")
 
 def normalization_path(model_path) -> Path:
     path = Path(model_path)
-    return path.with_name(path.stem + ".vecnormalize")
+    return path.with_name(path.stem + "_vecnormalize")
 
 
 def save_normalization(vecnorm: VecNormalize, model_path) -> None:

@@ -195,7 +195,12 @@ class CurriculumVecEnv(VecEnvWrapper):
             for i in range(self.num_envs):
                 next_obs = infos[i]["terminal_observation"] if dones[i] else obs[i]
                 self.controller.record_step(
-                    self._last_obs[i], self._actions[i], float(rewards[i]), next_obs, bool(dones[i])
+                    self._last_obs[i],
+                    self._actions[i],
+                    float(rewards[i]),
+                    next_obs,
+                    bool(dones[i]),
+                    worker=i,
                 )
         for i in np.flatnonzero(dones):
             self._pending[i] -= 1  # the auto-reset consumed the prefetched task

@@ -7,10 +7,7 @@ the training envs or the teacher.
 
 from __future__ import annotations
 
-import csv
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
@@ -42,43 +39,6 @@ class EvalResult:
             "mean_length": float(np.mean(self.lengths)),
             "n_tasks": int(len(self.returns)),
         }
-
-
-def load_test_set(path, task_space) -> np.ndarray:
-    """A test set file: .npy (N, d), .csv (header = task-space names, or bare numbers) or .json.
-
-    JSON may be a list of vectors or a list of {name: value} dicts.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise ValueError(f"test set file {str(path)!r} does not exist")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        tasks = np.load(path, allow_pickle=False)
-    elif suffix == ".csv":
-        with path.open(newline="") as f:
-            rows = [r for r in csv.reader(f) if r]
-        try:
-            float(rows[0][0])
-        except ValueError:
-            rows = rows[1:]
-        tasks = np.asarray(rows, dtype=np.float64)
-    elif suffix == ".json":
-        data = json.loads(path.read_text())
-        tasks = np.asarray(
-            [task_space.to_vector(t) if isinstance(t, dict) else t for t in data], dtype=np.float64
-        )
-    else:
-        raise ValueError(f"test set {str(path)!r}: expected a .npy, .csv or .json file")
-    tasks = np.atleast_2d(tasks).astype(np.float64)
-    if tasks.shape[1] != task_space.dim:
-        raise ValueError(
-            f"test set {str(path)!r}: tasks have {tasks.shape[1]} values, the task space "
-            f"{list(task_space.flat_names())} has {task_space.dim}"
-        )
-    for t in tasks:
-        task_space.validate_vector(t)
-    return tasks
 
 
 def evaluate(

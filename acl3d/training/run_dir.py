@@ -163,17 +163,18 @@ class RunDir:
         return self.config_yaml.exists()
 
     # ------------------------------------------------------------------ config and status
-    def create(self, config: dict) -> None:
+    def create(self, config: dict, **sections) -> None:
         if self.exists():
             raise ValueError(
                 f"run directory {str(self.path)!r} already holds a run; use --resume to continue "
                 "it or choose another --out"
             )
         self.path.mkdir(parents=True, exist_ok=True)
-        self.write_config(config)
+        self.write_config(config, **sections)
 
-    def write_config(self, config: dict) -> None:
-        doc = {"config": config, "environment": environment_info()}
+    def write_config(self, config: dict, **sections) -> None:
+        """`config` is what `read_config` returns; `sections` are derived facts, for people."""
+        doc = {"config": config, **sections, "environment": environment_info()}
         _atomic_write(self.config_yaml, yaml.safe_dump(doc, sort_keys=False))
         _atomic_write(self.path / "config.json", json.dumps(doc, indent=2))
 
@@ -187,7 +188,9 @@ class RunDir:
 
     def set_crashed(self, exc: BaseException) -> None:
         tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
-        self.set_status("crashed", error=str(exc), traceback=tb, latest_checkpoint=self._latest())
+        self.set_status(
+            "crashed", error=str(exc), traceback=tb, latest_checkpoint=self.latest_checkpoint_name()
+        )
 
     # ------------------------------------------------------------------ checkpoints
     def new_checkpoint_dir(self, step: int) -> Path:
@@ -207,12 +210,12 @@ class RunDir:
             if stale.name > folder.name:  # left by a crash during an earlier save
                 shutil.rmtree(stale, ignore_errors=True)
 
-    def _latest(self) -> str | None:
+    def latest_checkpoint_name(self) -> str | None:
         pointer = self.checkpoints / "LATEST"
         return pointer.read_text().strip() if pointer.exists() else None
 
     def latest_checkpoint(self) -> Path:
-        name = self._latest()
+        name = self.latest_checkpoint_name()
         if name is None or not (self.checkpoints / name / "progress.json").exists():
             raise ValueError(
                 f"run directory {str(self.path)!r} has no complete checkpoint to resume"

@@ -26,15 +26,15 @@ def make_env(env_name: str, body: str | None = None, env_kwargs=None, render_mod
     kwargs = dict(env_kwargs or {})
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
-    if "/" in env_name or env_name[:1].isupper():
-        if env_name.startswith("acl3d/"):
-            import acl3d.envs  # noqa: F401  (registers the ids)
+    import acl3d.envs  # registers the acl3d/* ids
 
-            kwargs.setdefault("body", body)
+    if body is not None and (env_name in acl3d.envs.ENV_NAMES or env_name.startswith("acl3d/")):
+        kwargs["body"] = body
+    if env_name in acl3d.envs.ENV_NAMES or env_name.startswith("acl3d/"):
+        return acl3d.envs.make(env_name, **kwargs)
+    if "/" in env_name or "-v" in env_name:
         return gym.make(env_name, **kwargs)
-    import acl3d.envs
-
-    return acl3d.envs.make(env_name, body=body, **kwargs)
+    raise ValueError(f"unknown environment {env_name!r}; valid: {', '.join(acl3d.envs.ENV_NAMES)}")
 
 
 def make_worker_env(env_name: str, body: str | None, env_kwargs=None, render_mode=None):

@@ -1,0 +1,203 @@
+"""`acl3d train`: train a student on a teacher's curriculum (or `--resume RUN_DIR`).
+
+Options come from TrainConfig defaults, then a YAML/TOML `--config` file, then the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import yaml
+
+_FLAGS = {  # store_true options: config field -> help
+    "shuffle_dimensions": "cut each task dimension in 4 and shuffle the pieces (rugged difficulty)",
+    "scale_reward": "give the teacher returns scaled to [0, 1] with the env's reward bounds",
+    "eval_stochastic": "evaluate with sampled actions (TeachMyAgent's PPO) instead of the mean",
+}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", help="YAML or TOML file holding any option below (CLI wins)")
+    p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
+    g = p.add_argument_group("what to train")
+    g.add_argument("--env", help="track name (stump-tracks, hexagon-tracks, ...)")
+    g.add_argument("--body", help="embodiment (default classic_bipedal)")
+    g.add_argument("--teacher", help="curriculum teacher (random, alp-gmm, ...)")
+    g.add_argument("--student", help="sac or ppo")
+    g.add_argument(
+        "--preset", help="student hyperparameters: benchmark (TeachMyAgent) or fast (CPU)"
+    )
+    g.add_argument("--steps", type=_count, help="training environment steps, e.g. 2e6")
+    g.add_argument("--n-envs", type=int, help="parallel training environments")
+    g.add_argument("--seed", type=int, help="seed of teacher, student and environments")
+    g.add_argument("--out", help="run directory to create")
+    g = p.add_argument_group("curriculum profile")
+    g.add_argument("--expert-knowledge", choices=("no", "low", "high"))
+    g.add_argument(
+        "--reset-student-every",
+        type=_count,
+        metavar="N",
+        help="re-initialise the student every N steps",
+    )
+    g.add_argument(
+        "--bounds",
+        action="append",
+        metavar="NAME=MIN,MAX",
+        help="teacher bounds of a task parameter (repeatable), e.g. stump_height=0,9",
+    )
+    g.add_argument(
+        "--teacher-param",
+        action="append",
+        metavar="K=V",
+        help="teacher keyword argument (repeatable)",
+    )
+    g.add_argument(
+        "--student-param",
+        action="append",
+        metavar="K=V",
+        help="SB3 hyperparameter override (repeatable)",
+    )
+    g.add_argument("--buffer-size", type=_count, help="SAC replay buffer size (benchmark: 2e6)")
+    g.add_argument(
+        "--env-kwarg",
+        action="append",
+        metavar="K=V",
+        help="environment keyword argument (repeatable)",
+    )
+    for name, text in _FLAGS.items():
+        g.add_argument("--" + name.replace("_", "-"), action="store_true", default=None, help=text)
+    g = p.add_argument_group("evaluation and checkpoints")
+    g.add_argument(
+        "--eval-every", type=_count, help="steps between evaluations (default min(5e5, steps/5))"
+    )
+    g.add_argument(
+        "--eval-envs", type=int, help="parallel evaluation environments (default n-envs)"
+    )
+    g.add_argument(
+        "--test-set", help="test tasks file (.npy/.csv/.json); default: the controller's"
+    )
+    g.add_argument("--nb-test-episodes", type=int, help="size of the default test set (100)")
+    g.add_argument(
+        "--checkpoint-every", type=_count, help="steps between checkpoints (default eval-every)"
+    )
+    g.add_argument(
+        "--periodical-samples-every",
+        type=_count,
+        help="steps between teacher snapshots for plots (0 = never)",
+    )
+    g = p.add_argument_group("runtime")
+    g.add_argument("--vec-env", choices=("auto", "dummy", "subproc"))
+    g.add_argument("--start-method", choices=("forkserver", "spawn"))
+    g.add_argument("--torch-threads", type=int, help="torch threads in this process (default 1)")
+    g.add_argument("--device", help="torch device (default cpu)")
+    g.add_argument(
+        "--no-progress",
+        dest="progress_bar",
+        action="store_false",
+        default=None,
+        help="hide the progress bar",
+    )
+    g.add_argument(
+        "--no-replay-buffer-save",
+        dest="save_replay_buffer",
+        action="store_false",
+        default=None,
+        help="do not store the SAC replay buffer in checkpoints (resume then starts with an empty buffer)",
+    )
+    g.add_argument("--quiet", dest="verbose", action="store_const", const=0, default=None)
+
+
+def _count(text: str) -> int:
+    """Integers written as 2e6 or 2000000."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number like 2e6, got {text!r}") from None
+    if value != int(value):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
+    return int(value)
+
+
+def _key_values(items, what: str) -> dict:
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{what}: expected KEY=VALUE, got {item!r}")
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+def parse_bounds(items) -> dict[str, list[float]]:
+    out = {}
+    for item in items or ():
+        name, sep, rest = item.partition("=")
+        parts = rest.split(",")
+        try:
+            values = [float(v) for v in parts]
+        except ValueError:
+            values = []
+        if not sep or len(values) != 2:
+            raise ValueError(
+                f"--bounds: expected NAME=MIN,MAX (e.g. stump_height=0,9), got {item!r}"
+            )
+        out[name.strip()] = values
+    return out
+
+
+def load_config_file(path) -> dict:
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"--config file {str(path)!r} does not exist")
+    if path.suffix.lower() == ".toml":
+        import tomllib
+
+        data = tomllib.loads(path.read_text())
+    else:
+        data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"--config file {str(path)!r} must hold a mapping of options")
+    return {k.replace("-", "_"): v for k, v in data.items()}
+
+
+def options_from_args(args) -> dict:
+    """Config file values, overridden by every option given on the command line."""
+    options = load_config_file(args.config) if args.config else {}
+    simple = (
+        "env", "body", "teacher", "student", "preset", "steps", "n_envs", "seed", "out",
+        "expert_knowledge", "reset_student_every", "buffer_size", "eval_every", "eval_envs",
+        "test_set", "nb_test_episodes", "checkpoint_every", "periodical_samples_every", "vec_env",
+        "start_method", "torch_threads", "device", "progress_bar", "save_replay_buffer", "verbose",
+        *_FLAGS,
+    )  # fmt: skip
+    for name in simple:
+        value = getattr(args, name)
+        if value is not None:
+            options[name] = value
+    for name, items, parse in (
+        ("bounds", args.bounds, parse_bounds),
+        ("teacher_params", args.teacher_param, lambda x: _key_values(x, "--teacher-param")),
+        ("student_params", args.student_param, lambda x: _key_values(x, "--student-param")),
+        ("env_kwargs", args.env_kwarg, lambda x: _key_values(x, "--env-kwarg")),
+    ):
+        if items:
+            options[name] = {**options.get(name, {}), **parse(items)}
+    return options
+
+
+def run(args) -> int:
+    from acl3d.training import train
+
+    options = options_from_args(args)
+    if args.resume:
+        result = train(resume=args.resume, **options)
+    else:
+        result = train(options)
+    final = result.final_eval or {}
+    print(
+        f"run {result.run_dir}: {result.steps} steps, "
+        f"{final.get('mastered_pct', float('nan')):.1f}% mastered, "
+        f"mean test return {final.get('mean_return', float('nan')):.1f}"
+    )
+    return 0
