@@ -68,6 +68,8 @@ class TrackEnv(gym.Env):
             raise ValueError(f"track={track!r}; valid: {list(TRACKS)}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}; valid: None, 'rgb_array'")
+        if quality not in ("fast", "high"):
+            raise ValueError(f"quality={quality!r}; valid: 'fast' (no MSAA, no shadows) or 'high'")
         self.track = track
         self.body = (
             body
@@ -212,7 +214,7 @@ class TrackEnv(gym.Env):
         return unstable
 
     def _info(self, unstable: bool) -> dict:
-        info = {"success": self._episode_return > SUCCESS_RETURN}
+        info = {"success": bool(self._episode_return > SUCCESS_RETURN)}
         if unstable:
             info["unstable"] = True
         return info

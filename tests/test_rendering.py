@@ -1,0 +1,110 @@
+"""Offscreen rendering through EGL and OSMesa, and the `acl3d render` CLI's video files."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import gymnasium as gym
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+
+from acl3d.cli import main
+from acl3d.envs.track_env import TrackEnv
+
+FRAME_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import numpy as np
+    import acl3d, gymnasium as gym
+    env = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=160, height=120)
+    env.reset(seed=0, options={"task": {"stump_height": 2.0, "obstacle_spacing": 1.0}})
+    for _ in range(10):
+        env.step(np.full(4, 0.3))
+    frame = env.render()
+    env.close()
+    np.save(sys.argv[1], frame)
+    """
+)
+
+
+def render_in_subprocess(backend, tmp_path):
+    out = tmp_path / f"{backend}.npy"
+    env = {**os.environ, "MUJOCO_GL": backend}
+    env.pop("PYOPENGL_PLATFORM", None)
+    subprocess.run(
+        [sys.executable, "-c", FRAME_SCRIPT, str(out)],
+        env=env,
+        check=True,
+        capture_output=True,
+        timeout=120,
+    )
+    return np.load(out)
+
+
+def test_egl_and_osmesa_render_the_same_frame(tmp_path):
+    egl = render_in_subprocess("egl", tmp_path)
+    osmesa = render_in_subprocess("osmesa", tmp_path)
+    assert egl.shape == (120, 160, 3) and egl.dtype == np.uint8
+    assert egl.std() > 10  # not blank: sky, ground, walker
+    assert np.array_equal(egl, osmesa)
+
+
+def test_render_follows_the_walker_and_sees_new_terrain():
+    env = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=160, height=120)
+    env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})
+    flat = env.render()
+    env.reset(seed=0, options={"task": {"stump_height": 3.0, "obstacle_spacing": 0.2}})
+    stumps = env.render()  # heights re-uploaded to the renderer after the new task
+    env.close()
+    assert not np.array_equal(flat, stumps)
+
+
+def test_bad_render_arguments():
+    with pytest.raises(ValueError, match="quality"):
+        gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", quality="ultra")
+    with pytest.raises(ValueError, match="render_mode"):
+        TrackEnv(render_mode="rgb_arary")
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
+def test_render_cli_writes_a_video(tmp_path, suffix, capsys):
+    out = tmp_path / f"rollout{suffix}"
+    code = main(
+        [
+            "render",
+            "--env",
+            "stump-tracks",
+            "--body",
+            "classic_bipedal",
+            "--task",
+            "stump_height=1.5,obstacle_spacing=3",
+            "--episodes",
+            "1",
+            "--max-steps",
+            "30",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
+    assert code == 0 and out.exists()
+    reader = imageio.get_reader(out)
+    first = reader.get_data(0)
+    assert first.shape[:2] == (120, 160) and first.std() > 10
+    assert reader.get_data(1) is not None  # more than one frame
+    reader.close()
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_render_cli_rejects_bad_task(tmp_path, capsys):
+    code = main(
+        ["render", "--task", "stump_hight=1", "--out", str(tmp_path / "x.mp4"), "--no-progress"]
+    )
+    assert code == 2
+    assert "stump_hight" in capsys.readouterr().err
