@@ -15,15 +15,16 @@ _BACKEND_LIBRARIES = {
     "egl": ("EGL", "libegl1 libgl1 (Mesa: libegl-mesa0)"),
     "osmesa": ("OSMesa", "libosmesa6"),
 }
-_chosen: dict[str, object] = {"backend": None, "automatic": False, "tried": []}
+_chosen: dict[str, object] = {"backend": None, "tried": [], "note": ""}
 
 
 def select_gl_backend() -> str | None:
     """Set MUJOCO_GL to egl or osmesa when the user has not set it and no display exists."""
     if "MUJOCO_GL" in os.environ:
-        _chosen.update(backend=os.environ["MUJOCO_GL"], automatic=False)
+        _chosen.update(backend=os.environ["MUJOCO_GL"], note="MUJOCO_GL was set by the user")
         return os.environ["MUJOCO_GL"]
     if "mujoco" in sys.modules:  # too late to choose: MuJoCo picked its platform at import
+        _chosen["note"] = "mujoco was imported before acl3d, too late to choose; import acl3d first"
         return None
     if (
         sys.platform.startswith("linux")
@@ -36,21 +37,24 @@ def select_gl_backend() -> str | None:
                 os.environ["MUJOCO_GL"] = backend
                 if backend == "osmesa":
                     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-                _chosen.update(backend=backend, automatic=True)
+                _chosen.update(backend=backend, note=f"chosen automatically: {backend}")
                 return backend
+        _chosen["note"] = "no EGL or OSMesa library found"
+    else:
+        _chosen["note"] = "a display is available, MuJoCo's default (GLFW) is used"
     return None
 
 
 def gl_error_message(exc: BaseException) -> str:
     backend = os.environ.get("MUJOCO_GL", "(unset: MuJoCo's default, which needs a display)")
-    tried = ", ".join(_chosen["tried"]) or "none (MUJOCO_GL was set by the user)"
+    tried = ", ".join(_chosen["tried"]) or "none"
     hints = "; ".join(
         f"MUJOCO_GL={b} needs the Debian package(s) {pkgs}"
         for b, (_, pkgs) in _BACKEND_LIBRARIES.items()
     )
     return (
         f"offscreen rendering failed with MUJOCO_GL={backend} ({type(exc).__name__}: {exc}). "
-        f"Backends tried automatically: {tried}. {hints}. "
+        f"Backends tried automatically: {tried} ({_chosen['note']}). {hints}. "
         "Set MUJOCO_GL before importing mujoco or acl3d, e.g. `MUJOCO_GL=osmesa python ...`."
     )
 

@@ -108,3 +108,17 @@ def test_render_cli_rejects_bad_task(tmp_path, capsys):
     )
     assert code == 2
     assert "stump_hight" in capsys.readouterr().err
+
+
+def test_missing_gl_backend_gives_an_actionable_message(tmp_path):
+    script = "import mujoco, acl3d, gymnasium as gym\nenv = gym.make('acl3d/StumpTracks-v0', render_mode='rgb_array')\nenv.reset(seed=0)\nenv.render()\n"
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY")
+    }
+    proc = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode != 0
+    assert "libosmesa6" in proc.stderr and "import acl3d first" in proc.stderr
