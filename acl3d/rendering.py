@@ -7,9 +7,11 @@ creation failures are turned into a message saying what was tried and what to in
 
 from __future__ import annotations
 
+import atexit
 import ctypes.util
 import os
 import sys
+import weakref
 
 _BACKEND_LIBRARIES = {
     "egl": ("EGL", "libegl1 libgl1 (Mesa: libegl-mesa0)"),
@@ -59,6 +61,15 @@ def gl_error_message(exc: BaseException) -> str:
     )
 
 
+_live_renderers: weakref.WeakSet = weakref.WeakSet()
+
+
+def _close_live_renderers() -> None:
+    """Free GL contexts before MuJoCo's own exit hooks tear the GL display down."""
+    for renderer in list(_live_renderers):
+        renderer.close()
+
+
 class TrackRenderer:
     """A mujoco.Renderer bound to one model, with a camera, quality preset and hfield re-uploads."""
 
@@ -85,6 +96,9 @@ class TrackRenderer:
             raise RuntimeError(gl_error_message(exc)) from exc
         self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = quality == "high"
         self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = quality == "high"
+        if not _live_renderers:  # registered after mujoco's GL hooks, so it runs before them
+            atexit.register(_close_live_renderers)
+        _live_renderers.add(self)
         self.model = model
         self.camera = camera
         self._uploaded_versions: dict[int, int] = {}

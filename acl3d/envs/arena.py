@@ -26,7 +26,7 @@ class Arena:
         body: Body,
         grid: TrackGrid,
         template: str = "arena/track.xml",
-        camera_distance: float = 9.0,
+        camera_distance: float = 10.0,
     ):
         self.body = body
         self.grid = grid
@@ -50,8 +50,8 @@ class Arena:
         root.add_camera(
             name="track",
             mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM,
-            pos=[1.5, -camera_distance, 1.0],
-            xyaxes=[1, 0, 0, 0, 0.15, 1],
+            pos=[2.0, -camera_distance, 2.5],
+            xyaxes=[1, 0, 0, 0, 0.3, 1],
         )
         frame = spec.worldbody.add_frame(pos=[self.start_x, 0.0, body.spawn_height])
         spec.attach(body_spec, prefix=PREFIX, frame=frame)
