@@ -108,3 +108,37 @@ def make_predict(model, deterministic: bool, normalize_obs=None):
         return actions
 
     return predict
+
+
+def evaluate_saved_model(
+    model_path,
+    env_name: str,
+    body: str | None,
+    tasks: np.ndarray,
+    *,
+    env_kwargs=None,
+    n_envs: int = 1,
+    deterministic: bool = True,
+    seed: int = 0,
+    episodes_per_task: int = 1,
+    vec_env: str = "auto",
+    start_method: str = "forkserver",
+) -> EvalResult:
+    """Evaluate a saved SB3 zip (with its `_vecnormalize` statistics when present)."""
+    from acl3d.training import checkpoint, students
+    from acl3d.training.workers import make_vec_env
+
+    model = students.load(None, model_path)
+    normalize = checkpoint.observation_normalizer(model_path)
+    venv = make_vec_env(env_name, body, n_envs, env_kwargs, vec_env, start_method)
+    try:
+        if venv.observation_space.shape != model.observation_space.shape:
+            raise ValueError(
+                f"model {str(model_path)!r} expects observations of shape "
+                f"{model.observation_space.shape}, env {env_name!r} with body {body!r} gives "
+                f"{venv.observation_space.shape}"
+            )
+        predict = make_predict(model, deterministic, normalize)
+        return evaluate(predict, venv, tasks, seed=seed, episodes_per_task=episodes_per_task)
+    finally:
+        venv.close()

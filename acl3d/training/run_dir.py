@@ -221,3 +221,18 @@ class RunDir:
                 f"run directory {str(self.path)!r} has no complete checkpoint to resume"
             )
         return self.checkpoints / name
+
+    # ------------------------------------------------------------------ reading back
+    def best_model(self) -> Path:
+        """final_model.zip, or the newest checkpoint's model for a run still going or crashed."""
+        if self.final_model.exists():
+            return self.final_model
+        return self.latest_checkpoint() / "model.zip"
+
+    def test_tasks(self):
+        """The test set the run evaluated on (from its teacher dump), or None."""
+        if not self.teacher_prefix.with_suffix(".json").exists():
+            return None
+        from acl3d.teachers.base import load_state
+
+        return load_state(self.teacher_prefix).get("test_tasks")

@@ -8,6 +8,9 @@ algorithms with small networks and short rollouts so a CPU run shows learning wi
 
 from __future__ import annotations
 
+import json
+import zipfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -165,8 +168,30 @@ def build(
     )
 
 
-def load(student: str, path, env=None, device: str = "cpu") -> BaseAlgorithm:
+def load(student: str | None, path, env=None, device: str = "cpu") -> BaseAlgorithm:
+    """Load an SB3 zip; `student=None` recognises SAC/PPO from the zip's own metadata."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"model file {str(path)!r} does not exist")
+    if student is None:
+        student = detect(path)
     return _ALGOS[student].load(str(path), env=env, device=device)
+
+
+def detect(path) -> str:
+    """Which student wrote this SB3 zip (by the hyperparameters stored in it)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            data = json.loads(z.read("data"))
+    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+        raise ValueError(f"{str(path)!r} is not a Stable-Baselines3 model zip ({exc})") from None
+    if "n_epochs" in data:
+        return "ppo"
+    if "tau" in data and "buffer_size" in data:
+        return "sac"
+    raise ValueError(
+        f"{str(path)!r}: not a SAC or PPO model; valid students: {', '.join(STUDENTS)}"
+    )
 
 
 def algorithm_name(model: BaseAlgorithm) -> str:
