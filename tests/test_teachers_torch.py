@@ -94,6 +94,15 @@ def test_save_load_resumes_exactly(name, tmp_path):
         )
 
 
+@pytest.mark.parametrize("name", list(FAST))
+def test_plot_state_leaves_the_task_sequence_alone(name):
+    a, b = (make(name, SPACES["2d"], seed=2, **FAST[name]) for _ in range(2))
+    drive(a, 7)
+    drive(b, 7)
+    assert isinstance(b.plot_state(), dict)
+    np.testing.assert_array_equal(drive(a, 10), drive(b, 10))
+
+
 def test_resume_does_not_touch_global_rngs():
     torch.manual_seed(0)
     np.random.seed(0)

@@ -136,9 +136,9 @@ class GoalGAN(Teacher):
         return self.clip(self.centre + out * self.half_range)
 
     # ------------------------------------------------------------------ GAN
-    def _generate(self, n: int) -> np.ndarray:
+    def _generate(self, n: int, gen: torch.Generator | None = None) -> np.ndarray:
         with torch.no_grad():
-            z = torch.randn(n, self.dim, generator=self.gen)
+            z = torch.randn(n, self.dim, generator=self.gen if gen is None else gen)
             return self._from_unit(self.generator(z).double().numpy())
 
     def _train(self, goals: np.ndarray, labels: np.ndarray, iters: int) -> None:
@@ -227,10 +227,11 @@ class GoalGAN(Teacher):
                 self.success_buffer.append(goal)
 
     def plot_state(self) -> dict[str, Any]:
-        """A batch of generator samples (no exploration noise) and the replay buffer."""
+        """200 generator samples (no exploration noise; fixed latents, so plotting leaves the
+        teacher's random stream alone) and the replay buffer."""
         return {
             "kind": "samples",
-            "tasks": self._generate(200),
+            "tasks": self._generate(200, seeded_generator(self.seed)),
             "success_buffer": np.array(self.success_buffer).reshape(-1, self.dim),
         }
 

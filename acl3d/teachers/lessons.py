@@ -189,11 +189,15 @@ class Lessons(Teacher):
         return out
 
     def plot_state(self) -> dict[str, Any]:
+        """Every lesson as one task (randomised dimensions at the centre of their bounds)."""
+        tasks = np.where(
+            np.isnan(self.lesson_values), (self.mins + self.maxs) / 2, self.lesson_values
+        )
         return {
             "kind": "lesson",
             "index": self.lesson,
-            "n_lessons": self.n_lessons,
-            "tasks": self.current_values(),
+            "tasks": tasks,
+            "current": self.current_values(),
         }
 
     # ------------------------------------------------------------------ teacher API

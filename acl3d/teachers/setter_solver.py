@@ -188,10 +188,11 @@ class SetterSolver(Teacher):
         self._buffer: list[tuple[np.ndarray, float, float]] = []  # unit goal, f, success
 
     # ------------------------------------------------------------------ sampling
-    def _propose(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def _propose(self, n: int, gen: torch.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+        gen = self.gen if gen is None else gen
         with torch.no_grad():
-            f = _F_MIN + (1 - _F_MIN) * torch.rand(n, 1, generator=self.gen)
-            z = torch.randn(n, self.dim, generator=self.gen)
+            f = _F_MIN + (1 - _F_MIN) * torch.rand(n, 1, generator=gen)
+            z = torch.randn(n, self.dim, generator=gen)
             goals, _ = self.setter.sample(z, f)
         return goals.double().numpy(), f.double().numpy()[:, 0]
 
@@ -206,7 +207,8 @@ class SetterSolver(Teacher):
         return self.clip(self.rescale(goals[0]))
 
     def plot_state(self) -> dict[str, Any]:
-        goals, f = self._propose(200)
+        """200 setter samples from fixed draws, so plotting leaves the teacher's stream alone."""
+        goals, f = self._propose(200, seeded_generator(self.seed))
         return {"kind": "samples", "tasks": self.clip(self.rescale(goals)), "feasibility": f}
 
     # ------------------------------------------------------------------ feedback
