@@ -23,6 +23,7 @@ class Lidar:
         angles = a * np.arange(nb_rays) / nb_rays + b
         self.kind = kind
         self.range = ray_range
+        self._inv_range = 1.0 / ray_range
         self.nb_rays = nb_rays
         self._vec = np.stack([np.sin(angles), np.zeros(nb_rays), -np.cos(angles)], axis=1).ravel()
         self._groups = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)
@@ -45,6 +46,8 @@ class Lidar:
             self.nb_rays,
             self.range,
         )
-        hit = (self.geom_ids >= 0) & (self._dist <= self.range)
-        self.geom_ids[~hit] = -1
-        return np.where(hit, self._dist / self.range, 1.0)
+        fraction = self._dist * self._inv_range
+        miss = (self.geom_ids < 0) | (fraction > 1.0)
+        fraction[miss] = 1.0
+        self.geom_ids[miss] = -1
+        return fraction

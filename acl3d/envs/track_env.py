@@ -164,7 +164,7 @@ class TrackEnv(gym.Env):
             raise ValueError(
                 f"action: expected shape ({self.body.action_size},), got {action.shape}"
             )
-        if not np.all(np.isfinite(action)):
+        if not np.isfinite(action).all():
             raise ValueError(f"action: non-finite values {action}")
         self._apply_action(action)
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
@@ -190,7 +190,9 @@ class TrackEnv(gym.Env):
 
     # ------------------------------------------------------------------ internals
     def _new_terrain(self) -> None:
-        self.arena.write_heights(self.generator.profile(self.get_task(), self.np_random, self.arena.start_pad))
+        self.arena.write_heights(
+            self.generator.profile(self.get_task(), self.np_random, self.arena.start_pad)
+        )
 
     def _place_body(self) -> None:
         self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)

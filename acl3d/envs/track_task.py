@@ -8,6 +8,8 @@ terminates (success is judged by the return: > 230, reported at every step).
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -61,7 +63,7 @@ class TrackTask:
         """(x of the head, head observation): angle, 2*omega/50, 0.12*vx, 0.08*vz (+ 3D extras)."""
         b = self.bound
         r = data.xmat[b.root_id]  # row-major 3x3: columns are the body axes in the world
-        pitch = np.arctan2(r[6], r[0])  # nose-up positive (rotation about -y)
+        pitch = math.atan2(r[6], r[0])  # nose-up positive (rotation about -y)
         omega = data.cvel[b.root_id, :3]  # world angular velocity
         v = b.root_dof
         if self.body.planar:
@@ -69,8 +71,8 @@ class TrackTask:
             head = np.array([pitch, 2.0 * data.qvel[v + 2] / 50.0, 0.12 * vx, 0.08 * vz])
         else:
             vx, vy, vz = data.qvel[v : v + 3]
-            roll = np.arctan2(r[7], r[8])
-            yaw = np.arctan2(r[3], r[0])
+            roll = math.atan2(r[7], r[8])
+            yaw = math.atan2(r[3], r[0])
             head = np.array(
                 [
                     pitch,
@@ -121,11 +123,8 @@ class TrackTask:
         self.prev_shaping = shaping
         reward -= self.body.torque_cost_per_unit * float(np.minimum(np.abs(action), 1.0).sum())
         obs = self.observe(model, data, head, touched)
-        self.critical_contact = (
-            bool(touched[self.bound.critical_geom_ids].any())
-            if len(self.bound.critical_geom_ids)
-            else False
-        )
+        critical = self.bound.critical_geom_ids
+        self.critical_contact = bool(len(critical) and touched[critical].any())
         if self.critical_contact or x < 0.0:
             return obs, FAIL_REWARD, True, False
         if x > self.end_x:
