@@ -153,6 +153,19 @@ def test_spdl_pulled_to_target_once_alpha_is_on():
     assert kls[-1] < kls[0]
 
 
+def test_spdl_std_lower_bound_applies_only_far_from_the_target():
+    # values reward a narrow region: the distribution shrinks, but not below the floor
+    def value(states):
+        return -np.abs(states[:, 0] - 1.5)
+
+    floor = _spdl_run(value, n_episodes=450, std_lower_bound=0.4, kl_threshold=0.0)
+    free = _spdl_run(value, n_episodes=450)
+    assert np.sqrt(np.diag(free.mean_covariance()[1])).min() < 0.4
+    assert np.sqrt(np.diag(floor.mean_covariance()[1])).min() >= 0.4 - 1e-9
+    never = _spdl_run(value, n_episodes=450, std_lower_bound=0.4, kl_threshold=1e9)
+    np.testing.assert_allclose(never.mean_covariance()[1], free.mean_covariance()[1])
+
+
 def test_spdl_interleaved_streams_match_sequential_episodes():
     def play(interleave: bool):
         t = SelfPaced(SPACES["2d"], seed=5, update_frequency=8, update_offset=0)
