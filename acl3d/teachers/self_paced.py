@@ -385,12 +385,12 @@ class SelfPaced(Teacher):
         self._perf_returns = [float(r) for r in extra["perf_returns"]]
         ps = extra["pending_state"]
         self._pending_state = None if ps is None else np.asarray(ps, dtype=np.float32)
-        self._buffer = deque(
+        buffer = [
             (
                 None if b["state"] is None else np.asarray(b["state"], dtype=np.float32),
                 np.asarray(b["context"], dtype=np.float64),
                 float(b["return"]),
             )
             for b in extra["buffer"]
-        )
-        self._buffer = deque(self._buffer, maxlen=self.max_context_buffer_size)
+        ]
+        self._buffer = deque(buffer, maxlen=self.max_context_buffer_size)
