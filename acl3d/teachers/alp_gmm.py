@@ -49,23 +49,28 @@ class GaussianMixture:
         return {"weights": self.weights, "means": self.means, "covariances": self.covariances}
 
 
-def _log_gauss(x: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
-    """log N(x_n | mean_k, cov_k) as an (n, k) array."""
-    chol = np.linalg.cholesky(covs)
-    inv_chol = np.linalg.inv(chol)
-    diff = x[None, :, :] - means[:, None, :]
-    y = diff @ inv_chol.transpose(0, 2, 1)
-    log_det = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
-    return (-0.5 * (x.shape[1] * _LOG_2PI + (y * y).sum(axis=2)) - 0.5 * log_det[:, None]).T
+def _log_gauss(x2t: np.ndarray, xt: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
+    """log N(x_n | mean_k, cov_k) as a (k, n) array, from x^T (d, n) and its outer products (d*d, n).
+
+    The Mahalanobis terms are expanded (x'Px - 2x'Pm + m'Pm) so the whole E-step is two matrix
+    products instead of one small product per component (EM on a few hundred points is call-bound).
+    """
+    k, d = means.shape
+    log_det = 2.0 * np.log(np.diagonal(np.linalg.cholesky(covs), axis1=1, axis2=2)).sum(axis=1)
+    prec = np.linalg.inv(covs)
+    prec_mean = (prec @ means[:, :, None])[:, :, 0]
+    const = (prec_mean * means).sum(axis=1) + log_det + d * _LOG_2PI
+    maha = prec.reshape(k, d * d) @ x2t - 2.0 * (prec_mean @ xt)
+    return -0.5 * (maha + const[:, None])
 
 
-def _m_step(x: np.ndarray, resp: np.ndarray, reg_covar: float):
-    nk = resp.sum(axis=0) + _EPS10
-    means = (resp.T @ x) / nk[:, None]
-    diff = x[None, :, :] - means[:, None, :]
-    covs = (resp.T[:, :, None] * diff).transpose(0, 2, 1) @ diff / nk[:, None, None]
-    covs += reg_covar * np.eye(x.shape[1])
-    return nk / x.shape[0], means, covs
+def _m_step(x: np.ndarray, x2: np.ndarray, resp: np.ndarray, reg: np.ndarray):
+    """Weights, means and regularised covariances from (k, n) responsibilities."""
+    nk = resp.sum(axis=1) + _EPS10
+    d = x.shape[1]
+    means = (resp @ x) / nk[:, None]
+    covs = (resp @ x2).reshape(-1, d, d) / nk[:, None, None] - means[:, :, None] * means[:, None, :]
+    return nk / x.shape[0], means, covs + reg
 
 
 def _kmeanspp_resp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
@@ -100,18 +105,21 @@ def fit_gmm(
 ) -> tuple[GaussianMixture, float]:
     """EM for a full-covariance mixture; returns the best of `n_init` runs and its total log-lik."""
     best, best_ll = None, -np.inf
+    x2 = (x[:, :, None] * x[:, None, :]).reshape(len(x), -1)
+    xt, x2t = np.ascontiguousarray(x.T), np.ascontiguousarray(x2.T)
+    reg = reg_covar * np.eye(x.shape[1])
     for _ in range(n_init):
-        weights, means, covs = _m_step(x, _kmeanspp_resp(x, k, rng), reg_covar)
+        weights, means, covs = _m_step(x, x2, _kmeanspp_resp(x, k, rng).T, reg)
         prev = -np.inf
         for _ in range(max_iter):
-            log_p = _log_gauss(x, means, covs) + np.log(weights)
-            top = log_p.max(axis=1, keepdims=True)
-            log_norm = top[:, 0] + np.log(np.exp(log_p - top).sum(axis=1))
+            log_p = _log_gauss(x2t, xt, means, covs) + np.log(weights)[:, None]
+            top = log_p.max(axis=0)
+            log_norm = top + np.log(np.exp(log_p - top).sum(axis=0))
             ll = float(log_norm.mean())
             if abs(ll - prev) < tol:
                 break
             prev = ll
-            weights, means, covs = _m_step(x, np.exp(log_p - log_norm[:, None]), reg_covar)
+            weights, means, covs = _m_step(x, x2, np.exp(log_p - log_norm), reg)
         if ll > best_ll:
             best, best_ll = (weights, means, covs), ll
     return GaussianMixture(*best), best_ll * x.shape[0]
@@ -392,7 +400,9 @@ class NearestNeighbourALP:
         }
 
     def load(self, s: dict[str, Any]) -> None:
-        tasks = np.asarray(s["tasks"], dtype=np.float64).reshape(-1, self.tasks.shape[1])
+        tasks = np.asarray(s["tasks"], dtype=np.float64).reshape(
+            len(s["rewards"]), self.tasks.shape[1]
+        )
         self.n = len(tasks)
         cap = max(1024, self.buffer_size, 2 * self.n)
         self.tasks = np.zeros((cap, tasks.shape[1]))
@@ -470,7 +480,7 @@ class ALPGMM(GMMTeacherBase):
         return {
             **self._gmm_state(),
             "alp": self.alp_computer.state(),
-            "tasks_unit": np.asarray(self.tasks_unit).reshape(-1, self.d_act),
+            "tasks_unit": np.asarray(self.tasks_unit).reshape(len(self.raw_alps), self.d_act),
             "raw_alps": list(self.raw_alps),
         }
 
@@ -478,6 +488,8 @@ class ALPGMM(GMMTeacherBase):
         self._load_gmm_state(extra)
         self.alp_computer.load(extra["alp"])
         self.tasks_unit = list(
-            np.asarray(extra["tasks_unit"], dtype=np.float64).reshape(-1, self.d_act)
+            np.asarray(extra["tasks_unit"], dtype=np.float64).reshape(
+                len(extra["raw_alps"]), self.d_act
+            )
         )
         self.raw_alps = [float(a) for a in extra["raw_alps"]]

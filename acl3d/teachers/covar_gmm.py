@@ -75,7 +75,7 @@ class CovarGMM(GMMTeacherBase):
     def _extra_state(self) -> dict[str, Any]:
         return {
             **self._gmm_state(),
-            "tasks_unit": np.asarray(self.tasks_unit).reshape(-1, self.d_act),
+            "tasks_unit": np.asarray(self.tasks_unit).reshape(len(self.rewards), self.d_act),
             "times": list(self.times),
             "rewards": list(self.rewards),
         }
@@ -83,7 +83,9 @@ class CovarGMM(GMMTeacherBase):
     def _load_extra_state(self, extra: dict[str, Any]) -> None:
         self._load_gmm_state(extra)
         self.tasks_unit = list(
-            np.asarray(extra["tasks_unit"], dtype=np.float64).reshape(-1, self.d_act)
+            np.asarray(extra["tasks_unit"], dtype=np.float64).reshape(
+                len(extra["rewards"]), self.d_act
+            )
         )
         self.times = [float(t) for t in extra["times"]]
         self.rewards = [float(r) for r in extra["rewards"]]
