@@ -10,6 +10,10 @@ from acl3d.bodies.base import Body, BoundBody, GraspSensor, Motor
 # name -> "module:Class"
 _REGISTRY: dict[str, str] = {
     "classic_bipedal": "acl3d.bodies.classic_bipedal:ClassicBipedal",
+    "profile_chimpanzee": "acl3d.bodies.chimpanzee:ProfileChimpanzee",
+    "climbing_profile_chimpanzee": "acl3d.bodies.chimpanzee:ClimbingProfileChimpanzee",
+    "climbing_chest_profile_chimpanzee": "acl3d.bodies.chimpanzee:ClimbingChestProfileChimpanzee",
+    "fish": "acl3d.bodies.fish:Fish",
 }
 # TeachMyAgent names of older variants that map onto ours
 ALIASES: dict[str, str] = {"old_classic_bipedal": "classic_bipedal"}

@@ -37,9 +37,27 @@ class Motor:
     )
 
 
+def check_range(name: str, value, low, high, integer: bool = False):
+    """Validate a body option: a number (an integer if asked) in [low, high], else ValueError."""
+    kind = "an integer" if integer else "a number"
+    ok = (
+        isinstance(value, (int, np.integer))
+        if integer
+        else isinstance(value, (int, float, np.number))
+    )
+    if isinstance(value, bool) or not ok or not low <= value <= high:
+        raise ValueError(f"{name}={value!r}; valid: {kind} in [{low}, {high}]")
+    return value
+
+
 @dataclass(frozen=True)
 class GraspSensor:
-    """A climber's hand sensor: the geom that must touch a graspable surface, and its body."""
+    """A climber's hand sensor: the geom that must touch a graspable surface, and its body.
+
+    The geom is a non-colliding sphere (radius 0.05 m, contype = conaffinity = 0) at the hand tip:
+    it never pushes anything, so grasp logic (Parkour) tests it against graspable geoms itself
+    (e.g. `mujoco.mj_geomDistance`) and welds `body` to what it holds.
+    """
 
     geom: str
     body: str
@@ -61,10 +79,14 @@ class Body:
     spawn_height: ClassVar[float]  # root height above the ground at spawn, metres
     length: ClassVar[float] = 2.0  # extent along x, to size the start pad
     grasp_sensors: ClassVar[tuple[GraspSensor, ...]] = ()
-    frame_skip: ClassVar[int] = 2  # physics steps per 50 Hz control step (timestep 0.02 / frame_skip)
+    # physics steps per 50 Hz control step (timestep 0.02 / frame_skip)
+    frame_skip: ClassVar[int] = 2
+    initial_push: ClassVar[bool] = True  # the original pushes every body but the fish at spawn
 
-    def __init__(self, planar: bool | None = None):
+    def __init__(self, planar: bool | None = None, motors_torque: float | None = None):
         self.planar = self.planar_default if planar is None else bool(planar)
+        if motors_torque is not None:
+            self.torque = float(check_range("motors_torque", motors_torque, 1.0, 10_000.0))
 
     @property
     def action_size(self) -> int:

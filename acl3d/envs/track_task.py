@@ -32,8 +32,14 @@ class TrackTask:
         self.lidar = lidar
         self.end_x = end_x
         self.head_size = 4 if self.body.planar else 9
+        # climbers: [contact, grasping] per hand sensor, between the motor state and the lidars
+        self._grasp = np.zeros(2 * len(self.body.grasp_sensors))
         self.obs_size = (
-            self.head_size + bound.motor_state_size + lidar.nb_rays + self.extra_obs_size()
+            self.head_size
+            + bound.motor_state_size
+            + len(self._grasp)
+            + lidar.nb_rays
+            + self.extra_obs_size()
         )
         self._touched = np.zeros(bound.model.ngeom, dtype=bool)
         # where each motor's entries sit in the motor state (a contact flag follows some angles/speeds)
@@ -45,6 +51,14 @@ class TrackTask:
         self._motor_buffer = np.zeros(int(width.sum()))
         self.prev_shaping = 0.0
         self.critical_contact = False
+
+    def grasp_state(self, data: mujoco.MjData) -> np.ndarray:
+        """Climbers' sensor state, 2 entries per `Body.grasp_sensors` item: [has_contact, has_grasp].
+
+        Always 0 on tracks without graspable surfaces; tasks with a ceiling or creepers (Parkour)
+        override this to report their grasp logic. Empty for every other body.
+        """
+        return self._grasp
 
     def extra_obs_size(self) -> int:
         """Hook for tasks that add observation entries after the lidars (Parkour's surface flags)."""
@@ -112,7 +126,9 @@ class TrackTask:
 
     def observe(self, model, data, head, touched) -> np.ndarray:
         lidar = self.lidar.read(model, data, data.xpos[self.bound.root_id])
-        return np.concatenate((head, self.motor_state(data, touched), lidar)).astype(np.float32)
+        return np.concatenate(
+            (head, self.motor_state(data, touched), self.grasp_state(data), lidar)
+        ).astype(np.float32)
 
     def step(self, model, data, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
         """After physics: (observation, reward, terminated, crossed_the_end)."""
