@@ -108,12 +108,13 @@ def test_every_episode_plays_a_sampled_task_and_reports_once(kind):
     assert len(set(played_ids)) == len(played_ids), "an episode was reported twice"
     assert set(played_ids) <= set(range(len(controller.sampled)))
     truncated = 0
-    for task, ret, length, _success, initial_obs in controller.recorded:
+    for task, ret, length, success, initial_obs in controller.recorded:
         sampled = controller.sampled[int(round(task[0]))]
         np.testing.assert_array_equal(task, sampled)  # the task the env played, unchanged
         expected_len = min(episode_length(task), MAX_STEPS)
         truncated += episode_length(task) > MAX_STEPS
         assert length == expected_len
+        assert success == (expected_len % 2 == 0)  # the env's own flag at the last step
         assert ret == pytest.approx(float(task[1]) * expected_len, rel=1e-5)
         np.testing.assert_allclose(initial_obs, [task[0], task[1], 0.0], rtol=1e-6)
     assert truncated > 0, "the run must include time-limit truncations"

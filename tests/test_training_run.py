@@ -1,0 +1,245 @@
+"""End-to-end training on the real Stump Tracks: run directory, resume, evaluate, report, errors."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+from acl3d.cli import main
+from acl3d.teachers.base import load_state
+from acl3d.training import TrainConfig, train
+from acl3d.training.curriculum import WorkerError
+from acl3d.training.run_dir import RunDir, read_csv
+
+# Short episodes and small PPO rollouts keep a real training run to a few seconds.
+FAST = [
+    "--env", "stump-tracks", "--student", "ppo", "--preset", "fast", "--teacher", "random",
+    "--student-param", "n_steps=128", "--student-param", "batch_size=128",
+    "--env-kwarg", "max_episode_steps=60", "--nb-test-episodes", "4", "--no-progress", "--quiet",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "ppo"
+    rc = main(
+        [
+            "train",
+            *FAST,
+            "--steps",
+            "1024",
+            "--n-envs",
+            "2",
+            "--eval-every",
+            "512",
+            "--out",
+            str(out),
+        ]
+    )
+    assert rc == 0
+    return out
+
+
+def test_train_writes_a_complete_run_directory(trained_run):
+    run = RunDir(trained_run)
+    doc = yaml.safe_load(run.config_yaml.read_text())
+    assert doc["config"]["teacher"] == "random" and doc["config"]["n_envs"] == 2
+    assert doc["environment"]["packages"]["stable-baselines3"]
+    assert doc["student_hyperparameters"]["n_steps"] == 128
+    assert json.loads((trained_run / "status.json").read_text())["status"] == "finished"
+    evals = read_csv(run.evals_csv)
+    assert evals["step"] == [512.0, 1024.0]
+    assert all(0 <= m <= 100 for m in evals["mastered_pct"])
+    assert len(read_csv(run.evals_tasks_csv)["step"]) == 2 * 4
+    episodes = read_csv(run.episodes_csv)
+    assert {"stump_height", "obstacle_spacing", "return", "length"} <= set(episodes)
+    assert max(episodes["length"]) <= 60
+    dump = load_state(run.teacher_prefix)
+    assert len(dump["train_returns"]) == len(episodes["step"])  # every episode reached the teacher
+    np.testing.assert_allclose(dump["train_returns"], episodes["return"], rtol=1e-5, atol=1e-4)
+    assert dump["test_tasks"].shape == (4, 2)
+    assert len(dump["test_returns"]) == 8
+    assert (trained_run / "final_model.zip").exists()
+    assert (trained_run / "final_model_vecnormalize.npz").exists()
+    latest = run.latest_checkpoint()
+    for name in (
+        "model.zip",
+        "model_vecnormalize.json",
+        "controller.json",
+        "rng.npz",
+        "progress.json",
+    ):
+        assert (latest / name).exists(), name
+    events = b"".join(p.read_bytes() for p in run.tb.rglob("events.out.tfevents*"))
+    for tag in (
+        b"curriculum/mean_task/stump_height",
+        b"eval/mastered_pct",
+        b"curriculum/episode_return",
+    ):
+        assert tag in events
+
+
+def test_resume_continues_model_teacher_and_logs(trained_run, tmp_path):
+    run_dir = tmp_path / "resumed"
+    shutil.copytree(trained_run, run_dir)
+    checkpoint = RunDir(run_dir).latest_checkpoint()
+    saved = load_state(checkpoint / "controller")
+    n_sampled = len(saved["records"]["sampled_tasks"])
+
+    rc = main(["train", "--resume", str(run_dir), "--steps", "2048", "--no-progress", "--quiet"])
+    assert rc == 0
+    evals = read_csv(RunDir(run_dir).evals_csv)
+    assert evals["step"] == [512.0, 1024.0, 1536.0, 2048.0]
+    dump = load_state(RunDir(run_dir).teacher_prefix)
+    # The records before the checkpoint are kept, and the teacher's RNG continues exactly:
+    # the first tasks sampled after resuming are those a restored controller samples.
+    np.testing.assert_array_equal(
+        dump["sampled_tasks"][:n_sampled], saved["records"]["sampled_tasks"]
+    )
+    from acl3d.teachers.controller import TeacherController
+
+    fresh = TeacherController("random", dump_space(dump), 0)
+    fresh.load_state_dict(saved)
+    expected = np.stack([fresh.sample_task() for _ in range(4)])
+    np.testing.assert_array_equal(dump["sampled_tasks"][n_sampled : n_sampled + 4], expected)
+    assert len(list(RunDir(run_dir).tb.glob("train_*"))) == 1  # TensorBoard continues its run
+
+
+def dump_space(dump):
+    from acl3d.task_space import TaskSpace
+
+    return TaskSpace.from_bounds(dump["bounds"])
+
+
+def test_resume_refuses_changed_settings(trained_run):
+    with pytest.raises(ValueError, match="cannot change.*teacher"):
+        train(resume=trained_run, teacher="alp-gmm")
+
+
+def test_evaluate_cli_on_run_dir(trained_run, tmp_path, capsys):
+    out = tmp_path / "eval.csv"
+    rc = main(["evaluate", str(trained_run), "--n-envs", "2", "--out", str(out)])
+    assert rc == 0
+    assert "% mastered" in capsys.readouterr().out
+    rows = read_csv(out)
+    assert len(rows["return"]) == 4 and all(length <= 60 for length in rows["length"])
+
+
+def test_report_writes_plots_and_video(trained_run, tmp_path):
+    out = tmp_path / "report"
+    rc = main(
+        ["report", str(trained_run), "--out", str(out), "--video-tasks", "2", "--video-steps", "30"]
+    )
+    assert rc == 0
+    for name in ("mastered.png", "returns.png", "curriculum.png"):
+        assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    import imageio.v2 as imageio
+
+    with imageio.get_reader(out / "final.mp4") as reader:
+        frames = sum(1 for _ in reader)
+    assert frames >= 2 * 15
+
+
+def test_sac_with_self_paced_teacher_gets_values_and_steps(tmp_path):
+    """SPDL needs step rewards, initial states and the SAC critics; the run must feed all three."""
+    result = train(
+        TrainConfig(
+            env="stump-tracks",
+            teacher="self-paced",
+            student="sac",
+            preset="fast",
+            steps=600,
+            n_envs=1,
+            out=str(tmp_path / "sac"),
+            env_kwargs={"max_episode_steps": 40},
+            test_set="uniform",
+            nb_test_episodes=1,
+            eval_every=600,
+            teacher_params={"update_frequency": 200, "update_offset": 0},
+            student_params={"learning_starts": 100},
+            progress_bar=False,
+            verbose=0,
+        )
+    )
+    assert result.steps == 600
+    dump = load_state(RunDir(result.run_dir).teacher_prefix)
+    assert len(dump["train_returns"]) > 0
+    assert len(dump["teacher_bk"]["steps"]) >= 2  # SPDL updated its distribution
+
+
+class ExplodingReset(gym.Wrapper):
+    """A real track whose 6th reset raises, to check what a crashed run leaves behind."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.resets = 0
+
+    def reset(self, **kwargs):
+        self.resets += 1
+        if self.resets == 6:
+            raise FloatingPointError("simulation diverged (on purpose)")
+        return self.env.reset(**kwargs)
+
+
+def make_exploding(**kwargs):
+    from acl3d.envs import make
+
+    return ExplodingReset(make("stump-tracks", **kwargs))
+
+
+gym.register("acl3dtest/Exploding-v0", entry_point=make_exploding)
+
+
+def test_crashed_worker_stops_the_run_and_keeps_checkpoints(tmp_path):
+    out = tmp_path / "crash"
+    with pytest.raises(WorkerError, match="(?s)FloatingPointError: simulation diverged"):
+        train(
+            env="acl3dtest/Exploding-v0",
+            student="ppo",
+            preset="fast",
+            steps=100_000,
+            env_kwargs={"max_episode_steps": 30},
+            student_params={"n_steps": 64, "batch_size": 64},
+            eval_every=64,
+            test_set="uniform",
+            nb_test_episodes=1,
+            vec_env="dummy",
+            out=str(out),
+            progress_bar=False,
+            verbose=0,
+        )
+    status = json.loads((out / "status.json").read_text())
+    assert status["status"] == "crashed" and "simulation diverged" in status["traceback"]
+    model = RunDir(out).best_model()  # what was saved so far stays usable
+    assert model.parent.name == status["latest_checkpoint"]
+    assert main(["evaluate", str(out), "--n-envs", "1", "--env", "stump-tracks"]) == 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--env", "nope"], "valid: stump-tracks"),
+        (["--body", "nope"], "valid bodies: classic_bipedal"),
+        (["--teacher", "nope"], "valid teachers: random"),
+        (["--student", "nope"], "valid students: sac, ppo"),
+        (["--preset", "nope"], "valid presets: benchmark, fast"),
+        (["--student", "ppo", "--buffer-size", "1000"], "sac student only"),
+        (["--student-param", "batch_size=100000"], "batch_size"),
+        (["--bounds", "stump_heigth=0,9"], "valid: \\['stump_height'"),
+        (["--reset-student-every", "5000"], "never reset"),
+    ],
+)
+def test_bad_input_fails_before_training(args, message, tmp_path, capsys):
+    out = tmp_path / "bad"
+    base = ["train", "--student", "ppo", "--preset", "fast", "--steps", "1000", "--out", str(out)]
+    rc = main([*base, *args])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert re.search(message, err), err
+    assert not out.exists()
