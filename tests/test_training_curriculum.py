@@ -91,7 +91,9 @@ def vec_env(kind: str, n_envs: int, crash_at_task=None):
     return SubprocVecEnv(fns, start_method=kind)
 
 
-@pytest.mark.parametrize("kind", ["dummy", "forkserver", "spawn"])
+@pytest.mark.parametrize(
+    "kind", ["dummy", "forkserver", pytest.param("spawn", marks=pytest.mark.slow)]
+)
 def test_every_episode_plays_a_sampled_task_and_reports_once(kind):
     n_envs, n_steps = 3, 60
     controller = RecordingController(needs={"step_rewards"})

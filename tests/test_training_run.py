@@ -243,3 +243,30 @@ def test_bad_input_fails_before_training(args, message, tmp_path, capsys):
     err = capsys.readouterr().err
     assert re.search(message, err), err
     assert not out.exists()
+
+
+def test_config_file_holds_options_and_cli_overrides_it(tmp_path):
+    from acl3d.cli import build_parser
+    from acl3d.cli.train import options_from_args
+
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("teacher: alp-gmm\nsteps: 2e6\nn-envs: 4\nteacher_params: {nb_em_init: 2}\n")
+    toml = tmp_path / "run.toml"
+    toml.write_text('teacher = "riac"\nsteps = 1000\n')
+    args = build_parser().parse_args(
+        ["train", "--config", str(cfg), "--n-envs", "2", "--teacher-param", "fit_rate=100",
+         "--bounds", "stump_height=0,9", "--steps", "3e5"]
+    )  # fmt: skip
+    options = options_from_args(args)
+    assert options["teacher"] == "alp-gmm" and options["n_envs"] == 2 and options["steps"] == 300000
+    assert options["teacher_params"] == {"nb_em_init": 2, "fit_rate": 100}
+    assert options["bounds"] == {"stump_height": [0.0, 9.0]}
+    assert (
+        options_from_args(build_parser().parse_args(["train", "--config", str(cfg)]))["steps"]
+        == 2_000_000
+    )
+    toml_args = build_parser().parse_args(["train", "--config", str(toml)])
+    assert options_from_args(toml_args) == {"teacher": "riac", "steps": 1000}
+    config = TrainConfig.from_dict({"steps": 2_000_000})
+    assert config.effective_eval_every == 400_000  # TeachMyAgent's 500k, scaled to 5 evals
+    assert TrainConfig.from_dict({"steps": 20_000_000}).effective_eval_every == 500_000

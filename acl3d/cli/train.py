@@ -158,7 +158,20 @@ def load_config_file(path) -> dict:
         data = yaml.safe_load(path.read_text()) or {}
     if not isinstance(data, dict):
         raise ValueError(f"--config file {str(path)!r} must hold a mapping of options")
-    return {k.replace("-", "_"): v for k, v in data.items()}
+    options = {k.replace("-", "_"): v for k, v in data.items()}
+    for key in _COUNTS:  # YAML reads 2e6 as a string
+        if isinstance(options.get(key), str):
+            try:
+                options[key] = _count(options[key])
+            except argparse.ArgumentTypeError as exc:
+                raise ValueError(f"--config {key}: {exc}") from None
+    return options
+
+
+_COUNTS = (
+    "steps", "reset_student_every", "buffer_size", "eval_every", "checkpoint_every",
+    "periodical_samples_every",
+)  # fmt: skip
 
 
 def options_from_args(args) -> dict:

@@ -157,11 +157,14 @@ def _student_params(config: TrainConfig) -> dict:
 def _build_controller(config: TrainConfig, task_space):
     from acl3d.teachers.controller import TeacherController
 
+    params = dict(config.teacher_params)
+    if config.teacher == "lessons":  # ML-Agents' "progress" measure is relative to the budget
+        params.setdefault("max_steps", int(config.steps))
     return TeacherController(
         config.teacher,
         task_space,
         config.seed,
-        teacher_params=dict(config.teacher_params) or None,
+        teacher_params=params or None,
         expert_knowledge=config.expert_knowledge,
         env_name=config.env,
         scale_reward=config.scale_reward,

@@ -1,0 +1,103 @@
+"""Training throughput: SB3 students on Stump Tracks with a teacher in the loop vs without one,
+and vs Gymnasium's Walker2d-v5 under the same student settings.
+
+    python scripts/bench_training.py                    # ~1-2 min: ppo+sac, 1 and 2 envs
+    python scripts/bench_training.py --students ppo --envs 2 --ppo-steps 8192
+
+Every cell is `model.learn()` steps per wall-clock second after a warm-up (PPO: whole rollouts;
+SAC: past learning_starts, so gradient steps are included). Ratios compare cells measured in
+this same run; on shared machines repeat with --repeats and read the best.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+from stable_baselines3.common.vec_env import VecNormalize
+
+from acl3d.training import students
+from acl3d.training.curriculum import CurriculumVecEnv
+from acl3d.training.workers import make_env, make_vec_env
+
+
+def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
+    if kind == "walker2d":
+        venv = make_vec_env("Walker2d-v5", None, n_envs, curriculum=False)
+    elif kind == "stump":
+        venv = make_vec_env("stump-tracks", "classic_bipedal", n_envs, curriculum=False)
+    else:
+        from acl3d.teachers.controller import TeacherController
+
+        probe = make_env("stump-tracks", "classic_bipedal")
+        space = probe.unwrapped.task_space
+        probe.close()
+        controller = TeacherController(teacher, space, seed, env_name="stump-tracks")
+        venv = CurriculumVecEnv(
+            make_vec_env("stump-tracks", "classic_bipedal", n_envs, curriculum=True), controller
+        )
+    if students.uses_vecnormalize(student):
+        venv = VecNormalize(venv, clip_obs=10.0, clip_reward=10.0)
+    return venv
+
+
+def measure(kind: str, student: str, n_envs: int, steps: int, warmup: int, teacher: str) -> float:
+    env = build_env(kind, n_envs, teacher, 0, student)
+    try:
+        params = students.hyperparameters(student, "fast", n_envs)
+        model = students.build(student, params, env, seed=0)
+        model.learn(warmup)
+        start = time.perf_counter()
+        before = model.num_timesteps
+        model.learn(steps, reset_num_timesteps=False)
+        return (model.num_timesteps - before) / (time.perf_counter() - start)
+    finally:
+        env.close()
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--students", nargs="+", default=["ppo", "sac"], choices=students.STUDENTS)
+    p.add_argument("--envs", nargs="+", type=int, default=[1, 2], help="numbers of workers")
+    p.add_argument("--teacher", default="alp-gmm", help="teacher in the loop (default alp-gmm)")
+    p.add_argument("--ppo-steps", type=int, default=4096, help="timed PPO steps (2 rollouts)")
+    p.add_argument("--sac-steps", type=int, default=1500, help="timed SAC steps")
+    p.add_argument("--repeats", type=int, default=1, help="best of N measurements per cell")
+    args = p.parse_args()
+    torch.set_num_threads(1)
+
+    kinds = ("teacher", "stump", "walker2d")
+    rows = []
+    for student in args.students:
+        steps = args.ppo_steps if student == "ppo" else args.sac_steps
+        warmup = 2048 if student == "ppo" else 1000  # one rollout / learning_starts
+        for n_envs in args.envs:
+            best = {k: 0.0 for k in kinds}
+            for _ in range(args.repeats):
+                for kind in kinds:  # interleaved, so load changes hit all three alike
+                    sps = measure(kind, student, n_envs, steps, warmup, args.teacher)
+                    best[kind] = max(best[kind], sps)
+            rows.append((student, n_envs, best))
+            print(
+                f"  measured {student} x{n_envs}: "
+                + ", ".join(f"{k} {v:.0f}" for k, v in best.items()),
+                flush=True,
+            )
+
+    print()
+    print(f"training steps/s (SB3 'fast' preset; teacher = {args.teacher}; best of {args.repeats})")
+    print(
+        "| student | envs | Stump+teacher | Stump, no teacher | Walker2d-v5 "
+        "| teacher/no-teacher | Stump+teacher/Walker2d |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for student, n_envs, b in rows:
+        print(
+            f"| {student} | {n_envs} | {b['teacher']:.0f} | {b['stump']:.0f} | {b['walker2d']:.0f} "
+            f"| {b['teacher'] / b['stump']:.2f} | {b['teacher'] / b['walker2d']:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
