@@ -21,19 +21,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="YAML or TOML file holding any option below (CLI wins)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
     g = p.add_argument_group("what to train")
-    g.add_argument("--env", help="track name (stump-tracks, hexagon-tracks, ...)")
-    g.add_argument("--body", help="embodiment (default classic_bipedal)")
-    g.add_argument("--teacher", help="curriculum teacher (random, alp-gmm, ...)")
-    g.add_argument("--student", help="sac or ppo")
     g.add_argument(
-        "--preset", help="student hyperparameters: benchmark (TeachMyAgent) or fast (CPU)"
+        "--env", help="track: stump-tracks (default), hexagon-tracks, ... or a Gymnasium id"
     )
-    g.add_argument("--steps", type=_count, help="training environment steps, e.g. 2e6")
-    g.add_argument("--n-envs", type=int, help="parallel training environments")
-    g.add_argument("--seed", type=int, help="seed of teacher, student and environments")
+    g.add_argument("--body", help="embodiment (default classic_bipedal)")
+    g.add_argument("--teacher", help="curriculum teacher: random (default), alp-gmm, ...")
+    g.add_argument("--student", help="sac (default) or ppo")
+    g.add_argument(
+        "--preset",
+        help="student hyperparameters: benchmark (TeachMyAgent, default) or fast (small nets for CPU)",
+    )
+    g.add_argument("--steps", type=_count, help="training environment steps, e.g. 2e6 (default)")
+    g.add_argument(
+        "--n-envs",
+        type=int,
+        help="parallel training environments (default 1; >1 runs worker processes)",
+    )
+    g.add_argument("--seed", type=int, help="seed of teacher, student and environments (default 0)")
     g.add_argument("--out", help="run directory to create")
     g = p.add_argument_group("curriculum profile")
-    g.add_argument("--expert-knowledge", choices=("no", "low", "high"))
+    g.add_argument(
+        "--expert-knowledge",
+        choices=("no", "low", "high"),
+        help="what the teacher may know about the task space (default low)",
+    )
     g.add_argument(
         "--reset-student-every",
         type=_count,

@@ -188,7 +188,11 @@ class CurriculumVecEnv(VecEnvWrapper):
         self.venv.step_async(actions)
 
     def step_wait(self):
-        obs, rewards, dones, infos = self.venv.step_wait()
+        try:
+            obs, rewards, dones, infos = self.venv.step_wait()
+        except (EOFError, ConnectionError) as exc:  # a worker process died without a traceback
+            codes = [p.exitcode for p in getattr(self.venv, "processes", [])]
+            raise WorkerError(f"an environment worker process died (exit codes {codes})") from exc
         raise_worker_errors(infos, "step")
         self.total_steps += self.num_envs
         if self._record_steps:

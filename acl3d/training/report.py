@@ -71,12 +71,29 @@ def plot_curriculum(run: RunDir, out: Path) -> Path | None:
     else:
         x, y = np.asarray(cols[names[0]]), steps
         ax.set_ylabel("training steps")
+    bounds = _teacher_bounds(run)
+    if bounds is not None and len(names) >= 2:
+        (x0, y0), (x1, y1) = bounds[0][:2], bounds[1][:2]
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", color="grey"))
+        ax.set_xlim(x0 - 0.05 * (x1 - x0 or 1), x1 + 0.05 * (x1 - x0 or 1))
+        ax.set_ylim(y0 - 0.05 * (y1 - y0 or 1), y1 + 0.05 * (y1 - y0 or 1))
     sc = ax.scatter(x, y, c=steps, cmap="viridis", s=8, alpha=0.7)
     fig.colorbar(sc, ax=ax, label="training steps")
     ax.set_xlabel(names[0])
     ax.set_title(f"{run.path.name}: sampled training tasks")
     ax.grid(alpha=0.3)
     return _save(fig, out / "curriculum.png")
+
+
+def _teacher_bounds(run: RunDir):
+    """(low, high) of the teacher's task space from the run's dump, or None before the first."""
+    path = run.teacher_prefix.with_suffix(".json")
+    if not path.exists():
+        return None
+    from acl3d.teachers.base import load_state
+
+    dump = load_state(run.teacher_prefix)
+    return np.asarray(dump["low"]), np.asarray(dump["high"])
 
 
 def _save(fig, path: Path) -> Path:

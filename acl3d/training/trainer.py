@@ -229,7 +229,10 @@ class _Session:
     def __exit__(self, *exc):
         for env in (self.train_env, self.eval_env):
             if env is not None:
-                env.close()
+                try:
+                    env.close()
+                except (OSError, EOFError):  # a dead worker must not hide the real error
+                    pass
 
     def normalize_obs(self):
         vn = self.vecnorm
