@@ -9,12 +9,14 @@ MAX_EPISODE_STEPS = 2000  # the students' cut in TeachMyAgent (40 s at 50 Hz), a
 ENV_IDS: dict[str, str] = {
     "stump-tracks": "acl3d/StumpTracks-v0",
     "hexagon-tracks": "acl3d/HexagonTracks-v0",
+    "parkour": "acl3d/Parkour-v0",
 }
 ENV_NAMES: tuple[str, ...] = tuple(ENV_IDS)
 
 _ENTRY_POINTS = {
     "acl3d/StumpTracks-v0": ("acl3d.envs.track_env:TrackEnv", {"track": "stump"}),
     "acl3d/HexagonTracks-v0": ("acl3d.envs.track_env:TrackEnv", {"track": "hexagon"}),
+    "acl3d/Parkour-v0": ("acl3d.envs.parkour_env:ParkourEnv", {}),
 }
 
 for _id, (_entry, _kwargs) in _ENTRY_POINTS.items():

@@ -1,0 +1,303 @@
+"""TeachMyAgent's Parkour in 3D: CPPN ground and ceiling, water, creepers, climbing; any body.
+
+`gymnasium.make("acl3d/Parkour-v0", body=...)`. The ground and the ceiling are two heightfields
+(the ceiling one turned upside down) whose columns sit exactly on the original's terrain points
+(one every TS), rewritten in place at every reset; water and creepers are geoms in their own
+static bodies, moved and resized in the compiled model, so a new task never recompiles.
+
+Walkers start on the start pad, swimmers 1 m higher with no push, climbers hang from the
+start-pad ceiling (placed with their highest hand at it, then 5 + 1 steps with the grasp actions
+at +1, as the original). Options: `input_space` ("medium", "easy", "full"), `lidars_type`
+("down", "up", "full"; default per body kind), `end_on_death`, `water_clip`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import mujoco
+import numpy as np
+
+from acl3d.bodies.base import Body
+from acl3d.envs.arena import Arena
+from acl3d.envs.climbing import Climbing, add_grasp_welds
+from acl3d.envs.lidar import LIDAR_TYPES
+from acl3d.envs.parkour_task import DEFAULT_LIDARS, ParkourLidar, ParkourTask
+from acl3d.envs.track_env import TrackEnv
+from acl3d.envs.water import PUSH_CLIP, Water
+from acl3d.rendering import TrackRenderer
+from acl3d.terrain.parkour import (
+    INPUT_SPACES,
+    ParkourGenerator,
+    ParkourTerrain,
+    check_buildable,
+    parkour_task_space,
+)
+from acl3d.terrain.tracks import TERRAIN_STEP, TrackGrid, start_pad_for
+
+GRID_MARGIN = 10  # heightfield columns (TS each) before x = 0 and after the last terrain point
+GROUND_RANGE = (-60.0, 60.0)  # metres: what the ground heightfield can represent
+CEILING_RANGE = (-60.0, 80.0)
+CREEPER_HALF_DEPTH = 0.5  # creepers are 1 m deep across the track
+PARKED_Z = -1000.0  # unused creepers wait here, invisible
+WATER_HALF_HEIGHT = 100.0
+SWIMMER_LIFT = 1.0  # swimmers spawn 1 m higher than their rest height
+HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
+
+
+class ParkourArena(Arena):
+    """The Parkour template sized to the terrain grid, with a creeper pool and grasp welds."""
+
+    def __init__(self, body: Body, generator: ParkourGenerator):
+        self.generator = generator
+        n = generator.nb_points
+        grid = TrackGrid(
+            x_min=-GRID_MARGIN * TERRAIN_STEP,
+            x_max=(n - 1 + GRID_MARGIN) * TERRAIN_STEP,
+            ncol=n + 2 * GRID_MARGIN,
+        )
+        super().__init__(body, grid, template="arena/parkour.xml")
+        m = self.model
+        self.ceiling_id = m.hfield("ceiling").id
+        self.ceiling_geom = m.geom("ceiling").id
+        adr = m.hfield_adr[self.ceiling_id]
+        self._ceiling = m.hfield_data[adr : adr + 2 * grid.ncol].reshape(2, grid.ncol)
+        self.water_body = m.body("water").id
+        self.creeper_bodies = np.array([m.body(f"creeper{k}").id for k in range(self._pool)])
+        self.creeper_geoms = np.array([m.geom(f"creeper{k}").id for k in range(self._pool)])
+        self._creeper_rgba = m.geom_rgba[self.creeper_geoms[0]].copy()
+        self.terrain: ParkourTerrain | None = None
+
+    def customise(self, spec: mujoco.MjSpec) -> None:
+        centre_x = (self.grid.x_max + self.grid.x_min) / 2
+        half_length = (self.grid.x_max - self.grid.x_min) / 2
+        lo, hi = GROUND_RANGE
+        spec.hfield("terrain").size = [half_length, 2.0, hi - lo, 1.0]
+        spec.geom("terrain").pos = [centre_x, 0.0, lo]
+        lo, hi = CEILING_RANGE
+        ceiling = spec.hfield("ceiling")
+        ceiling.ncol, ceiling.nrow = self.grid.ncol, 2
+        ceiling.size = [half_length, 2.0, hi - lo, 1.0]
+        spec.geom("ceiling").pos = [centre_x, 0.0, hi]
+        mid_z, half_z = (
+            (CEILING_RANGE[1] + GROUND_RANGE[0]) / 2,
+            (CEILING_RANGE[1] - GROUND_RANGE[0]) / 2,
+        )
+        for name in ("wall_left", "wall_right"):
+            wall = spec.geom(name)
+            wall.size = [half_length, wall.size[1], half_z]
+            wall.pos = [centre_x, wall.pos[1], mid_z]
+        spec.geom("water").size = [half_length, 2.0, WATER_HALF_HEIGHT]
+        spec.body("water").pos = [centre_x, 0.0, PARKED_Z]
+        finish = spec.geom("finish_line")
+        finish.pos = [self.generator.end_x, 0.0, mid_z]
+        finish.size = [0.05, 2.0, half_z]
+        self._pool = self.generator.max_creepers()
+        for k in range(self._pool):
+            creeper = spec.worldbody.add_body(name=f"creeper{k}", pos=[0.0, 0.0, PARKED_Z])
+            creeper.add_geom(
+                name=f"creeper{k}",
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                size=[0.1, CREEPER_HALF_DEPTH, 0.1],
+                contype=0,
+                conaffinity=0,
+                group=0,
+                material="creeper",
+            )
+        add_grasp_welds(spec, self.body.grasp_sensors)
+
+    def write_terrain(self, terrain: ParkourTerrain) -> None:
+        """Ground, ceiling, water level and creepers of one episode, written in place."""
+        self.terrain = terrain
+        g = self.grid
+        lo, hi = GROUND_RANGE
+        ground = np.interp(g.x, terrain.x, terrain.ground)
+        self.heights = ground
+        self._hfield[:] = np.clip((ground - lo) / (hi - lo), 0.0, 1.0)[None, :]
+        lo, hi = CEILING_RANGE
+        ceiling = np.interp(g.x, terrain.x, terrain.ceiling)
+        self._ceiling[:] = np.clip((hi - ceiling) / (hi - lo), 0.0, 1.0)[None, :]
+        m = self.model
+        m.body_pos[self.water_body, 2] = terrain.water_z - WATER_HALF_HEIGHT
+        self._place_creepers(terrain.creepers)
+        self.version += 1
+
+    def _place_creepers(self, creepers: np.ndarray) -> None:
+        m, n = self.model, len(creepers)
+        bodies, geoms = self.creeper_bodies, self.creeper_geoms
+        half = np.column_stack(
+            (
+                (creepers[:, 1] - creepers[:, 0]) / 2,
+                np.full(n, CREEPER_HALF_DEPTH),
+                (creepers[:, 2] - creepers[:, 3]) / 2,
+            )
+        )
+        m.body_pos[bodies[:n]] = np.column_stack(
+            (
+                (creepers[:, 0] + creepers[:, 1]) / 2,
+                np.zeros(n),
+                (creepers[:, 2] + creepers[:, 3]) / 2,
+            )
+        )
+        m.geom_size[geoms[:n]] = half
+        m.geom_aabb[geoms[:n], 3:] = half
+        m.geom_rbound[geoms[:n]] = np.linalg.norm(half, axis=1)
+        m.geom_rgba[geoms[:n]] = self._creeper_rgba
+        m.body_pos[bodies[n:]] = (0.0, 0.0, PARKED_Z)
+        m.geom_rgba[geoms[n:], 3] = 0.0  # invisible to renderers and rays
+
+    def ceiling_height(self, x: float) -> float:
+        return float(self.terrain.ceiling_at(x))
+
+
+class ParkourEnv(TrackEnv):
+    """Parkour with any body: task = CPPN input (3), water level, creepers (3), CPPN scale.
+
+    Args:
+        body, planar, body_options, frame_skip, render_mode, width, height, camera, quality:
+            as for the tracks (`acl3d.envs.track_env.TrackEnv`).
+        input_space: bounds of the CPPN input in the task space: "medium" (benchmark), "easy",
+            "full" ([-1, 1]^3).
+        lidars_type: "down", "up" or "full"; default: down for walkers and amphibians, up for
+            climbers, full for swimmers.
+        end_on_death: end the episode when the body drowns or suffocates (default: it keeps
+            running with zero actions and the dead flag up, as the original).
+        water_clip: the clip of the swimming thrust per force component (the original's 20).
+    """
+
+    def __init__(
+        self,
+        body: str | Body = "classic_bipedal",
+        planar: bool | None = None,
+        body_options: Mapping | None = None,
+        input_space: str = "medium",
+        lidars_type: str | None = None,
+        end_on_death: bool = False,
+        water_clip: float = PUSH_CLIP,
+        frame_skip: int | None = None,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | None = None,
+        quality: str = "fast",
+    ):
+        if input_space not in INPUT_SPACES:
+            raise ValueError(f"input_space={input_space!r}; valid: {list(INPUT_SPACES)}")
+        if lidars_type is not None and lidars_type not in LIDAR_TYPES:
+            raise ValueError(f"lidars_type={lidars_type!r}; valid: {list(LIDAR_TYPES)} or None")
+        if not (np.isfinite(water_clip) and water_clip >= 0):
+            raise ValueError(f"water_clip={water_clip!r}; valid: a number >= 0")
+        self.input_space = input_space
+        self.end_on_death = bool(end_on_death)
+        self._lidars_type = lidars_type
+        self._water_clip = float(water_clip)
+        super().__init__(
+            track="stump",
+            body=body,
+            planar=planar,
+            body_options=body_options,
+            frame_skip=frame_skip,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+            camera=camera,
+            quality=quality,
+        )
+        self._zero_action = np.zeros(self.body.action_size)
+        self._nb_grasp = len(self.body.grasp_sensors)
+        self.terrain: ParkourTerrain | None = None
+
+    # ------------------------------------------------------------------ construction hooks
+    def _build_arena(self) -> ParkourArena:
+        # the Parkour task space and generator replace the track ones set by TrackEnv
+        self.task_space = parkour_task_space(self.input_space)
+        self.generator = ParkourGenerator(start_pad_for(self.body.length))
+        return ParkourArena(self.body, self.generator)
+
+    def _make_task(self) -> ParkourTask:
+        arena, model = self.arena, self.model
+        self.water = Water(model, self.bound.body_geom_ids, push_clip=self._water_clip)
+        self.climbing = (
+            Climbing(model, self.body.grasp_sensors, CREEPER_HALF_DEPTH)
+            if self.body.grasp_sensors
+            else None
+        )
+        kind = self._lidars_type or DEFAULT_LIDARS[self.body.kind]
+        lidar = ParkourLidar(kind, arena.creeper_geoms)
+        return ParkourTask(
+            self.bound,
+            lidar,
+            self.water,
+            self.climbing,
+            arena.ceiling_geom,
+            self.generator.end_x,
+            self.end_on_death,
+        )
+
+    # ------------------------------------------------------------------ tasks
+    def set_task(self, task) -> None:
+        """Set the task used from the next reset on: a dict (partial: defaults fill the rest) or a flat vector."""
+        if isinstance(task, Mapping):
+            vector = self.task_space.to_vector(task)
+        else:
+            vector = self.task_space.validate_vector(task)
+        check_buildable(self.task_space.to_dict(vector))
+        self._task_vector = vector
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        if self.climbing:
+            grasp = np.zeros(self.body.action_size)
+            grasp[-self._nb_grasp :] = 1.0
+            for _ in range(HANG_STEPS):
+                self._apply_action(grasp)
+                mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+                self.climbing.after_step(self.data)
+            obs = self.task.reset(self.model, self.data)
+        return obs, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = TrackRenderer(self.model, **self._render_args)
+        for hfield in (self.arena.hfield_id, self.arena.ceiling_id):
+            self._renderer.upload_hfield(hfield, self.arena.version)
+        return self._renderer.render(self.data)
+
+    # ------------------------------------------------------------------ internals
+    def _new_terrain(self) -> None:
+        self.terrain = self.generator.generate(self.get_task(), self.np_random)
+        self.arena.write_terrain(self.terrain)
+        self.water.level = self.terrain.water_z
+        self.task.lidar.water_level = self.terrain.water_z
+        self.task.reset_survival()
+
+    def _place_body(self) -> None:
+        kind = self.body.kind
+        if kind == "swimmer":
+            self.bound.place(self.data, self.arena.start_x, self.body.spawn_height + SWIMMER_LIFT)
+        else:
+            super()._place_body()
+        self.water.clear(self.data)
+        if self.climbing:
+            self.climbing.reset(self.data, self.terrain)
+            self._hang_from_ceiling()
+
+    def _hang_from_ceiling(self) -> None:
+        """Lift the climber so that its highest hand touches the start-pad ceiling."""
+        mujoco.mj_kinematics(self.model, self.data)
+        c = self.climbing
+        tops = self.data.geom_xpos[c.geom_ids, 2] + c.radius
+        lift = self.terrain.ceiling[0] - tops.max()
+        z_index = self.bound.root_qpos + (1 if self.body.planar else 2)
+        self.data.qpos[z_index] += lift
+
+    def _apply_action(self, action: np.ndarray) -> None:
+        """Dead bodies play zeros; grasps are released first; water forces for this step."""
+        played = self._zero_action if self.task.dead else action
+        if self.climbing:
+            self.climbing.before_step(self.data, played[-self._nb_grasp :])
+        self.water.apply(self.data)
+        super()._apply_action(played)
