@@ -14,9 +14,18 @@ _REGISTRY: dict[str, str] = {
     "climbing_profile_chimpanzee": "acl3d.bodies.chimpanzee:ClimbingProfileChimpanzee",
     "climbing_chest_profile_chimpanzee": "acl3d.bodies.chimpanzee:ClimbingChestProfileChimpanzee",
     "fish": "acl3d.bodies.fish:Fish",
+    "small_bipedal": "acl3d.bodies.bipeds:SmallBipedal",
+    "amphibious_bipedal": "acl3d.bodies.bipeds:AmphibiousBipedal",
+    "big_quadru": "acl3d.bodies.quadruped:BigQuadru",
+    "wheel": "acl3d.bodies.wheel:Wheel",
+    "spider": "acl3d.bodies.spider:Spider",
+    "millipede": "acl3d.bodies.millipede:Millipede",
 }
 # TeachMyAgent names of older variants that map onto ours
-ALIASES: dict[str, str] = {"old_classic_bipedal": "classic_bipedal"}
+ALIASES: dict[str, str] = {
+    "old_classic_bipedal": "classic_bipedal",
+    "old_big_quadru": "big_quadru",
+}
 
 BODIES: tuple[str, ...] = tuple(_REGISTRY)
 
