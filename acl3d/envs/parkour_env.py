@@ -5,7 +5,7 @@
 (one every TS), rewritten in place at every reset; water and creepers are geoms in their own
 static bodies, moved and resized in the compiled model, so a new task never recompiles.
 
-Walkers start on the start pad, swimmers 1 m higher with no push, climbers hang from the
+Walkers start on the start pad, the fish 1 m higher with no push, climbers hang from the
 start-pad ceiling (placed with their highest hand at it, then 5 + 1 steps with the grasp actions
 at +1, as the original). Options: `input_space` ("medium", "easy", "full"), `lidars_type`
 ("down", "up", "full"; default per body kind), `end_on_death`, `water_clip`.
@@ -41,7 +41,6 @@ CEILING_RANGE = (-60.0, 80.0)
 CREEPER_HALF_DEPTH = 0.5  # creepers are 1 m deep across the track
 PARKED_Z = -1000.0  # unused creepers wait here, invisible
 WATER_HALF_HEIGHT = 100.0
-SWIMMER_LIFT = 1.0  # swimmers spawn 1 m higher than their rest height
 HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
 
 
@@ -275,11 +274,10 @@ class ParkourEnv(TrackEnv):
         self.task.reset_survival()
 
     def _place_body(self) -> None:
-        kind = self.body.kind
-        if kind == "swimmer":
-            self.bound.place(self.data, self.arena.start_x, self.body.spawn_height + SWIMMER_LIFT)
-        else:
+        if self.body.initial_push:
             super()._place_body()
+        else:  # the fish: no push (its spawn height already includes the original's +1 m)
+            self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)
         self.water.clear(self.data)
         if self.climbing:
             self.climbing.reset(self.data, self.terrain)

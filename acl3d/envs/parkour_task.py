@@ -75,7 +75,6 @@ class ParkourTask(TrackTask):
     ):
         self.water = water
         self.climbing = climbing
-        self.nb_grasp_values = 2 * climbing.nb_sensors if climbing else 0
         super().__init__(bound, lidar, end_x)
         body = bound.body
         self.kind = body.kind
@@ -92,7 +91,10 @@ class ParkourTask(TrackTask):
         self.under_water = False
 
     def extra_obs_size(self) -> int:
-        return 2 + self.nb_grasp_values + self.lidar.nb_rays
+        return 2 + self.lidar.nb_rays  # under_water and dead flags, surface flags
+
+    def grasp_state(self, data: mujoco.MjData) -> np.ndarray:
+        return self.climbing.state() if self.climbing else self._grasp
 
     # ------------------------------------------------------------------ survival
     def reset_survival(self) -> None:
@@ -119,15 +121,17 @@ class ParkourTask(TrackTask):
     # ------------------------------------------------------------------ observation
     def observe(self, model, data, head, touched) -> np.ndarray:
         lidar = self.lidar.read(model, data, data.xpos[self.bound.root_id])
-        parts = [
-            head,
-            (float(self.under_water), float(self.dead)),
-            self.motor_state(data, touched),
-        ]
-        if self.climbing:
-            parts.append(self.climbing.state())
-        parts += [lidar, self.lidar.flags]
-        return np.concatenate(parts).astype(np.float32)
+        flags = (float(self.under_water), float(self.dead))
+        return np.concatenate(
+            (
+                head,
+                flags,
+                self.motor_state(data, touched),
+                self.grasp_state(data),
+                lidar,
+                self.lidar.flags,
+            )
+        ).astype(np.float32)
 
     def reset(self, model, data) -> np.ndarray:
         self.reset_survival()

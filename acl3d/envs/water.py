@@ -91,24 +91,38 @@ class Water:
         half = model.geom_aabb[geoms, 3:]
         self._e1 = half[np.arange(len(geoms)), self._k1]
         self._e2 = half[np.arange(len(geoms)), self._k2]
-        self._centre = model.geom_aabb[geoms, :3]
+        centre = model.geom_aabb[geoms, :3]
+        self._centre = centre if np.abs(centre).max(initial=0.0) > 1e-9 else None
+        self._rbound = model.geom_rbound[geoms]
+        flat = 9 * geoms
+        self._axis_index = np.stack(
+            (flat + self._k1, flat + 6 + self._k1, flat + self._k2, flat + 6 + self._k2)
+        )
+        self._lengths = np.column_stack((2 * self._e2, 2 * self._e2, 2 * self._e1, 2 * self._e1))
+        self._half_offsets = np.column_stack((self._e1, self._e1, self._e2, self._e2))
         self.bodies = model.geom_bodyid[geoms]
         self._tree_root = model.body_rootid[self.bodies]
         self.body_ids = np.unique(self.bodies)
         self._gravity = -float(model.opt.gravity[2])
         self._wet = False
-        self._push_joint, self._push_geom = self._push_tables(model)
+        self._push_tables(model)
 
-    def _push_tables(self, model):
-        """For each geom on a body moved by an actuated hinge: that joint (else -1)."""
+    def _push_tables(self, model: mujoco.MjModel) -> None:
+        """Geoms on a body moved by an actuated hinge, and that hinge's indices."""
         actuated = {int(model.actuator_trnid[a, 0]) for a in range(model.nu)}
         joint = np.full(len(self.geoms), -1)
         for i, b in enumerate(self.bodies):
             for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
                 if j in actuated and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE:
                     joint[i] = j
-        rows = np.flatnonzero(joint >= 0)
-        return joint[rows], rows
+        self._push_rows = np.flatnonzero(joint >= 0)
+        j = joint[self._push_rows]
+        self._push_joints = j
+        self._push_dofs = model.jnt_dofadr[j]
+        self._push_qpos = model.jnt_qposadr[j]
+        self._push_free = ~model.jnt_limited[j].astype(bool)
+        self._push_low, self._push_high = model.jnt_range[j, 0], model.jnt_range[j, 1]
+        self._push_inertia = model.body_inertia[self.bodies[self._push_rows]].max(axis=1)
 
     def submerged(self, z) -> np.ndarray:
         return np.asarray(z) <= self.level
@@ -116,106 +130,91 @@ class Water:
     def apply(self, data: mujoco.MjData) -> float:
         """Write this step's water forces into data.xfrc_applied; return the submerged area."""
         g = self.geoms
-        xmat = data.geom_xmat[g].reshape(-1, 3, 3)
-        rows = np.arange(len(g))
-        u = xmat[rows, :, self._k1][:, [0, 2]]  # in-plane axes, x-z components
-        w = xmat[rows, :, self._k2][:, [0, 2]]
-        centre = data.geom_xpos[g] + np.einsum("gij,gj->gi", xmat, self._centre)
-        e1, e2 = self._e1, self._e2
-        half_z = np.abs(u[:, 1]) * e1 + np.abs(w[:, 1]) * e2
-        bottom = centre[:, 2] - half_z
-        if not np.any(bottom < self.level):
+        pos = data.geom_xpos[g]
+        if (pos[:, 2] - self._rbound).min() >= self.level:  # dry: nothing reaches the water
             if self._wet:
-                data.xfrc_applied[self.body_ids] = 0.0
-                self._wet = False
+                self.clear(data)
             return 0.0
         self._wet = True
+        ux, uz, wx, wz = data.geom_xmat.ravel()[self._axis_index]  # in-plane axes, x-z parts
+        centre = (
+            pos
+            if self._centre is None
+            else pos + np.einsum("gij,gj->gi", data.geom_xmat[g].reshape(-1, 3, 3), self._centre)
+        )
+        cx, cy, cz = centre[:, 0], centre[:, 1], centre[:, 2]
+        e1, e2 = self._e1, self._e2
+        half_z = np.abs(uz) * e1 + np.abs(wz) * e2
+        bottom = cz - half_z
         frac = np.clip((self.level - bottom) / (2 * half_z + 1e-9), 0.0, 1.0)
         rho = self.density
-        force = np.zeros((len(g), 2))  # x-z force on each geom
-        point = centre[:, [0, 2]].copy()  # where it acts
 
-        # buoyancy, at the centre of the submerged slice
+        # buoyancy, vertical through the geom's centre (its height does not change the torque)
         buoy = rho * self.area * frac * self._gravity
-        point_b = point.copy()
-        point_b[:, 1] = (bottom + np.minimum(bottom + 2 * half_z, self.level)) / 2
 
-        # the four edges of each rectangle: outward normal n, tangent t, length L, midpoint m
-        normals = np.stack((u, -u, w, -w), axis=1)  # (G, 4, 2)
-        lengths = np.stack((2 * e2, 2 * e2, 2 * e1, 2 * e1), axis=1)
-        offsets = np.stack((e1, e1, e2, e2), axis=1)[..., None] * normals
-        mids = point[:, None, :] + offsets
-        tangents = np.stack((-normals[..., 1], normals[..., 0]), axis=-1)
+        # the four edges of each geom's rectangle: outward normals, lengths, midpoints
+        nx = np.column_stack((ux, -ux, wx, -wx))
+        nz = np.column_stack((uz, -uz, wz, -wz))
+        mx = cx[:, None] + self._half_offsets * nx
+        mz = cz[:, None] + self._half_offsets * nz
 
-        # velocity of each edge midpoint (rigid body motion of the geom's body)
+        # velocity of each edge midpoint (rigid motion of the geom's body), x-z parts
         cvel = data.cvel[self.bodies]
         com = data.subtree_com[self._tree_root]
-        rel = np.zeros((len(g), 4, 3))
-        rel[..., [0, 2]] = mids - com[:, None, [0, 2]]
-        rel[..., 1] = -com[:, None, 1] + centre[:, None, 1]
-        vel = cvel[:, None, 3:] + np.cross(cvel[:, None, :3], rel)
-        v = vel[..., [0, 2]]
-        speed = np.linalg.norm(v, axis=-1)
-        vhat = v / np.maximum(speed, 1e-9)[..., None]
-        n_v = np.einsum("gek,gek->ge", normals, vhat)
-        t_v = np.einsum("gek,gek->ge", tangents, vhat)
-        lead = (n_v >= 0) & (speed > 1e-6)
-        base = np.where(lead, lengths * rho * speed**2, 0.0) * frac[:, None]
+        rx, rz = mx - com[:, 0:1], mz - com[:, 2:3]
+        ry = (cy - com[:, 1])[:, None]
+        vx = cvel[:, 3:4] + cvel[:, 1:2] * rz - cvel[:, 2:3] * ry
+        vz = cvel[:, 5:6] + cvel[:, 0:1] * ry - cvel[:, 1:2] * rx
+        speed2 = vx * vx + vz * vz
+        inv = 1.0 / np.maximum(np.sqrt(speed2), 1e-9)
+        n_v = (nx * vx + nz * vz) * inv  # n . v_hat
+        t_v = (nx * vz - nz * vx) * inv  # t . v_hat, t = (-n_z, n_x)
+        base = np.where(n_v > 0.0, self._lengths * rho * speed2, 0.0) * frac[:, None]
         drag = np.minimum(DRAG_MOD * n_v * base, MAX_DRAG)
         lift = np.minimum(LIFT_MOD * n_v * t_v * base, MAX_LIFT)
-        perp = np.stack((-vhat[..., 1], vhat[..., 0]), axis=-1)
-        edge_force = -drag[..., None] * vhat + lift[..., None] * perp  # (G, 4, 2)
+        fx = (-drag * vx - lift * vz) * inv  # -drag v_hat + lift perp(v_hat)
+        fz = (-drag * vz + lift * vx) * inv
 
-        forces, points = [force + np.array([0.0, 1.0]) * buoy[:, None]], [point_b]
-        forces.append(edge_force.reshape(-1, 2))
-        points.append(mids.reshape(-1, 2))
-        owners = [rows, np.repeat(rows, 4)]
-        if len(self._push_geom):
-            push, anchor, which = self._push(data, normals, lengths, frac)
-            forces.append(push)
-            points.append(anchor)
-            owners.append(which)
-        self._accumulate(
-            data, np.concatenate(forces), np.concatenate(points), np.concatenate(owners)
-        )
-        return float((self.area * frac).sum())
-
-    def _push(self, data, normals, lengths, frac):
-        """Swimming thrust: reaction of the water to each motor's torque, at the joint anchor."""
-        rows, joints = self._push_geom, self._push_joint
-        m = self.model
-        dof = m.jnt_dofadr[joints]
-        qpos = data.qpos[m.jnt_qposadr[joints]]
-        lo, hi = m.jnt_range[joints, 0], m.jnt_range[joints, 1]
-        inside = ~m.jnt_limited[joints].astype(bool) | ((qpos > lo) & (qpos < hi))
-        axis = data.xaxis[joints]
-        # hinge torque as a 2D (counter-clockwise seen from -y) torque
-        tau = data.qfrc_actuator[dof] * -axis[:, 1]
-        omega = data.qvel[dof] * -axis[:, 1]
-        inertia = m.body_inertia[self.bodies[rows]].max(axis=1)
-        anchor = data.xanchor[joints][:, [0, 2]]
-        lever = data.xipos[self.bodies[rows]][:, [0, 2]] - anchor
-        f = tau[:, None] * np.stack((-lever[:, 1], lever[:, 0]), axis=1)
-        n_f = np.einsum("gek,gk->ge", normals[rows], f)
-        mag = np.where(n_f > 0, n_f * PUSH_MOD * lengths[rows] * self.density, 0.0)
-        mag *= ((tau + inertia * omega) ** 2)[:, None]
-        per_edge = np.clip(-mag[..., None] * f[:, None, :], -self.push_clip, self.push_clip)
-        push = per_edge.sum(axis=1) * (frac[rows] * inside)[:, None]
-        return push, anchor, rows
-
-    def _accumulate(self, data, forces, points, owners) -> None:
-        """Sum x-z forces applied at x-z points into each body's xfrc_applied (force + torque)."""
-        bodies = self.bodies[owners]
-        xipos = data.xipos[bodies]
-        arm_x = points[:, 0] - xipos[:, 0]
-        arm_z = points[:, 1] - xipos[:, 2]
-        torque_y = arm_z * forces[:, 0] - arm_x * forces[:, 1]
+        xipos = data.xipos[self.bodies]
+        ax, az = xipos[:, 0:1], xipos[:, 2:3]
+        force_x = fx.sum(axis=1)
+        force_z = fz.sum(axis=1) + buoy
+        torque_y = ((mz - az) * fx - (mx - ax) * fz).sum(axis=1) - (cx - ax[:, 0]) * buoy
+        if len(self._push_rows):
+            self._add_push(data, nx, nz, frac, force_x, force_z, torque_y)
         out = data.xfrc_applied
         out[self.body_ids] = 0.0
         nb = self.model.nbody
-        out[:, 0] += np.bincount(bodies, forces[:, 0], nb)
-        out[:, 2] += np.bincount(bodies, forces[:, 1], nb)
-        out[:, 4] += np.bincount(bodies, torque_y, nb)
+        out[:, 0] += np.bincount(self.bodies, force_x, nb)
+        out[:, 2] += np.bincount(self.bodies, force_z, nb)
+        out[:, 4] += np.bincount(self.bodies, torque_y, nb)
+        return float((self.area * frac).sum())
+
+    def _add_push(self, data, nx, nz, frac, force_x, force_z, torque_y) -> None:
+        """Swimming thrust: the water's reaction to each motor's torque, at the joint anchor."""
+        rows, joints = self._push_rows, self._push_joints
+        dof = self._push_dofs
+        qpos = data.qpos[self._push_qpos]
+        inside = self._push_free | ((qpos > self._push_low) & (qpos < self._push_high))
+        sign = -data.xaxis[joints, 1]  # hinge torque as a 2D counter-clockwise torque
+        tau = data.qfrc_actuator[dof] * sign
+        omega = data.qvel[dof] * sign
+        bodies = self.bodies[rows]
+        anchor = data.xanchor[joints]
+        xipos = data.xipos[bodies]
+        lever_x, lever_z = xipos[:, 0] - anchor[:, 0], xipos[:, 2] - anchor[:, 2]
+        f_x, f_z = -tau * lever_z, tau * lever_x
+        n_f = nx[rows] * f_x[:, None] + nz[rows] * f_z[:, None]
+        mag = np.where(n_f > 0.0, n_f * PUSH_MOD * self._lengths[rows] * self.density, 0.0)
+        mag *= ((tau + self._push_inertia * omega) ** 2)[:, None]
+        clip = self.push_clip
+        scale = frac[rows] * inside
+        px = np.clip(-mag * f_x[:, None], -clip, clip).sum(axis=1) * scale
+        pz = np.clip(-mag * f_z[:, None], -clip, clip).sum(axis=1) * scale
+        force_x[rows] += px  # rows are distinct geoms
+        force_z[rows] += pz
+        arm_x, arm_z = anchor[:, 0] - xipos[:, 0], anchor[:, 2] - xipos[:, 2]
+        torque_y[rows] += arm_z * px - arm_x * pz
 
     def clear(self, data: mujoco.MjData) -> None:
         data.xfrc_applied[self.body_ids] = 0.0
