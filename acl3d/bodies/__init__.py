@@ -20,6 +20,8 @@ _REGISTRY: dict[str, str] = {
     "wheel": "acl3d.bodies.wheel:Wheel",
     "spider": "acl3d.bodies.spider:Spider",
     "millipede": "acl3d.bodies.millipede:Millipede",
+    "dmc:ant": "acl3d.bodies.dmc:Ant",
+    "dmc:cmu_humanoid": "acl3d.bodies.dmc:CMUHumanoid",
 }
 # TeachMyAgent names of older variants that map onto ours
 ALIASES: dict[str, str] = {
