@@ -303,3 +303,16 @@ def test_oracle_window_moves_only_when_reward_threshold_is_reached():
     np.testing.assert_allclose(teacher.window_low, [0.2, 4.6])
     tasks = np.array([teacher.sample_task() for _ in range(100)])
     assert np.all(tasks[:, 0] >= 0.2 - 1e-6) and np.all(tasks[:, 0] <= 0.7 + 1e-6)
+
+
+def test_gmm_fit_and_aic_match_sklearn():
+    from sklearn.mixture import GaussianMixture
+
+    from acl3d.teachers.alp_gmm import gmm_fitness
+
+    rng = np.random.default_rng(1)
+    x = np.vstack([rng.normal([0, 0, 0], 0.1, (150, 3)), rng.normal([1, 1, 0.5], 0.2, (100, 3))])
+    ours, log_lik = fit_gmm(x, 2, np.random.default_rng(0))
+    ref = GaussianMixture(2, covariance_type="full", random_state=0).fit(x)
+    assert gmm_fitness("aic", log_lik, 2, len(x), 3) == pytest.approx(ref.aic(x), rel=1e-3)
+    assert gmm_fitness("bic", log_lik, 2, len(x), 3) == pytest.approx(ref.bic(x), rel=1e-3)

@@ -210,9 +210,9 @@ class RIAC(Teacher):
         )
         self.children[node] = (left_id, right_id)
         self.cut[node] = (dim, thr)
+        # one small record per split (TMA stored every box at every split: quadratic growth)
         self.bk["split_iterations"].append(self.nb_episodes + 1)
-        self.bk["all_boxes"].append(np.stack([np.asarray(self.low), np.asarray(self.high)], axis=1))
-        self.bk["all_alps"].append(self.alps.copy())
+        self.bk["splits"].append([node, dim, thr, float(alp_l), float(alp_r)])
 
     # ------------------------------------------------------------------ sampling
     def _region_alps(self) -> tuple[np.ndarray, np.ndarray]:
