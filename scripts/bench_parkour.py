@@ -1,0 +1,115 @@
+"""Parkour speed: env.step for the biped, the climber and the fish; reset with a new task; water.
+
+Also renders one README image per body (--out DIR). Every number is measured in this run on
+this machine; the original 2D Box2D Parkour runs ~6,200 steps/s with the biped and resets with a
+new task in ~6.5 ms on this machine class (reference: mujoco-notes.md). Run on an idle machine:
+
+    python scripts/bench_parkour.py --steps 3000 --out /tmp/parkour_images
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
+import gymnasium as gym
+import numpy as np
+
+ORIGINAL_STEPS, ORIGINAL_RESET_MS = 6200, 6.5
+CASES = {  # body -> (task, kwargs): each body on the terrain it is meant for
+    "classic_bipedal": ({"water_level": 0.0}, {}),
+    "climbing_profile_chimpanzee": ({"creepers_height": 2.0, "creepers_spacing": 2.0}, {}),
+    "fish": ({"water_level": 1.0}, {}),
+}
+
+
+def step_rate(env, steps: int, seed: int = 0) -> float:
+    """env.step per second with uniform random actions (resets excluded)."""
+    rng = np.random.default_rng(seed)
+    actions = rng.uniform(-1, 1, (steps, env.action_space.shape[0]))
+    env.reset(seed=seed)
+    elapsed = 0.0
+    for i in range(steps):
+        t0 = time.perf_counter()
+        _, _, terminated, _, _ = env.step(actions[i])
+        elapsed += time.perf_counter() - t0
+        if terminated:
+            env.reset()
+    return steps / elapsed
+
+
+def reset_ms(env, n: int, seed: int = 0) -> float:
+    """Mean reset time with a new uniform task from the task space each time."""
+    space = env.unwrapped.task_space
+    tasks = np.random.default_rng(seed).uniform(space.low, space.high, (n, space.dim))
+    t0 = time.perf_counter()
+    for i, task in enumerate(tasks):
+        env.reset(seed=i, options={"task": task})
+    return (time.perf_counter() - t0) / n * 1e3
+
+
+def water_us(env, wet: bool, n: int = 2000) -> float:
+    """Cost of the water forces per control step, with the body under water or dry."""
+    env.reset(seed=0, options={"task": {"water_level": 1.0 if wet else 0.0}})
+    for _ in range(20):
+        env.step(env.action_space.sample())
+    water, data = env.unwrapped.water, env.unwrapped.data
+    t0 = time.perf_counter()
+    for _ in range(n):
+        water.apply(data)
+    return (time.perf_counter() - t0) / n * 1e6
+
+
+def render(body: str, task: dict, kwargs: dict, out: Path, steps: int = 40) -> Path:
+    env = gym.make("acl3d/Parkour-v0", body=body, render_mode="rgb_array", **kwargs)
+    env.reset(seed=1, options={"task": task})
+    rng = np.random.default_rng(1)
+    for _ in range(steps):
+        action = rng.uniform(-0.3, 0.3, env.action_space.shape)
+        if env.unwrapped.climbing:
+            action[-len(env.unwrapped.body.grasp_sensors) :] = 1.0
+        env.step(action)
+    import imageio.v3 as iio
+
+    path = out / f"parkour_{body}.png"
+    iio.imwrite(path, env.render())
+    env.close()
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=3000, help="env steps timed per body")
+    parser.add_argument("--resets", type=int, default=50, help="resets with a new task timed")
+    parser.add_argument("--out", type=Path, default=None, help="write README images here")
+    args = parser.parse_args()
+
+    print(f"original 2D Parkour (biped): ~{ORIGINAL_STEPS} steps/s, reset ~{ORIGINAL_RESET_MS} ms")
+    for body, (task, kwargs) in CASES.items():
+        env = gym.make("acl3d/Parkour-v0", body=body, **kwargs)
+        env.unwrapped.set_task(task)
+        rate = step_rate(env, args.steps)
+        reset = reset_ms(env, args.resets)
+        print(
+            f"{body:30s} obs {env.observation_space.shape[0]:3d}  {rate:7.0f} steps/s "
+            f"({rate / ORIGINAL_STEPS:.2f}x the original biped)  reset+new task {reset:5.2f} ms"
+        )
+    biped = gym.make("acl3d/Parkour-v0", body="classic_bipedal")
+    fish = gym.make("acl3d/Parkour-v0", body="fish")
+    print(
+        f"water forces per step: biped dry {water_us(biped, False):.1f} us, "
+        f"biped under water {water_us(biped, True):.1f} us, fish under water {water_us(fish, True):.1f} us"
+    )
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        for body, (task, kwargs) in CASES.items():
+            render_task = dict(task)
+            if body == "classic_bipedal":
+                render_task.update(water_level=0.9, creepers_height=1.0)
+            print("wrote", render(body, render_task, kwargs, args.out))
+
+
+if __name__ == "__main__":
+    main()
