@@ -233,17 +233,17 @@ def test_drag_slows_a_moving_body_only_under_water():
 def test_fish_swims_with_its_tail_and_drifts_little_at_rest():
     env = make("fish", planar=True)
     task = {"water_level": 1.0}
-    env.reset(seed=0, options={"task": task})
-    x0 = env.data.xpos[env.bound.root_id].copy()
-    for i in range(300):
-        phase = i * 0.3
-        env.step(np.sign(np.sin([phase, phase + 1, phase + 2, 0.0])) * [1, 1, 1, 0])
-    swum = np.linalg.norm((env.data.xpos[env.bound.root_id] - x0)[[0, 2]])
-    env.reset(seed=0, options={"task": task})
-    for _ in range(300):
-        env.step(np.zeros(4))
-    rest = np.linalg.norm((env.data.xpos[env.bound.root_id] - x0)[[0, 2]])
-    assert swum > 2.0 and swum > 1.5 * rest
+
+    def travel(gait):
+        env.reset(seed=0, options={"task": task})
+        x0 = env.data.xpos[env.bound.root_id, 0]
+        for i in range(300):
+            env.step(gait(i))
+        return env.data.xpos[env.bound.root_id, 0] - x0
+
+    wave = travel(lambda i: np.sign(np.sin([0.3 * i, 0.3 * i - 1, 0.3 * i - 2, 0.0])))
+    rest = travel(lambda i: np.zeros(4))
+    assert abs(wave) > 2.0 and abs(rest) < 1.0  # the tail's thrust moves it along the track
 
 
 # ---------------------------------------------------------------------------- survival
@@ -311,6 +311,29 @@ def test_weld_anchors_are_per_env():
     assert a.climbing.holding.all()
     assert not np.array_equal(a.model.eq_data, anchors)
     assert np.array_equal(b.model.eq_data, before)
+
+
+def test_climber_grabs_a_movable_creeper_and_hangs_from_it():
+    env = make(CLIMBER, movable_creepers=True)
+    env.reset(seed=0, options={"task": {"creepers_height": 4.0, "creepers_spacing": 0.0}})
+    grasp = np.zeros(env.body.action_size)
+    grasp[-2:] = 1.0
+    env.step(-grasp)  # let go of the ceiling
+    hand = env.data.geom_xpos[env.climbing.geom_ids[0]]
+    segments = env.arena.creeper_geoms[: env.arena.nb_creeper_geoms]
+    centres = env.data.geom_xpos[segments]
+    below = centres[centres[:, 2] < hand[2] - 1.0]
+    target = below[np.argmin(np.abs(below[:, 0] - hand[0]))]  # a lower segment nearby
+    env.data.qpos[env.bound.root_qpos : env.bound.root_qpos + 2] += (target - hand)[[0, 2]]
+    env.data.qvel[:] = 0.0
+    mujoco.mj_forward(env.model, env.data)
+    env.step(grasp)
+    held = env.model.eq_obj2id[env.climbing.eq_ids[0]]
+    assert env.climbing.holding[0] and env.model.body(held).name.startswith("creeper")
+    z0 = env.data.xpos[env.bound.root_id, 2]
+    for _ in range(50):
+        env.step(grasp)
+    assert env.data.xpos[env.bound.root_id, 2] > z0 - 1.0  # held up by the chain, not falling
 
 
 def test_creepers_never_collide_but_lidars_see_them():

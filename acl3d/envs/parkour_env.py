@@ -8,7 +8,7 @@ static bodies, moved and resized in the compiled model, so a new task never reco
 Walkers start on the start pad, the fish 1 m higher with no push, climbers hang from the
 start-pad ceiling (placed with their highest hand at it, then 5 + 1 steps with the grasp actions
 at +1, as the original). Options: `input_space` ("medium", "easy", "full"), `lidars_type`
-("down", "up", "full"; default per body kind), `end_on_death`, `water_clip`.
+("down", "up", "full"; default per body kind), `end_on_death`, `water_clip`, `movable_creepers`.
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ GROUND_RANGE = (-60.0, 60.0)  # metres: what the ground heightfield can represen
 CEILING_RANGE = (-60.0, 80.0)
 CREEPER_HALF_DEPTH = 0.5  # creepers are 1 m deep across the track
 PARKED_Z = -1000.0  # unused creepers wait here, invisible
+MOVABLE_SEGMENTS = 4  # a movable creeper is a chain of 4 equal segments
+SEGMENT_MASS = 5.0 * 0.25 * 1.0  # density 5 on a 0.25 x 1 m piece, as the original's pieces
+SEGMENT_RANGE = 0.4 * np.pi  # joint limits between pieces
 WATER_HALF_HEIGHT = 100.0
 HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
 
@@ -47,8 +50,9 @@ HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
 class ParkourArena(Arena):
     """The Parkour template sized to the terrain grid, with a creeper pool and grasp welds."""
 
-    def __init__(self, body: Body, generator: ParkourGenerator):
+    def __init__(self, body: Body, generator: ParkourGenerator, movable_creepers: bool = False):
         self.generator = generator
+        self.segments = MOVABLE_SEGMENTS if movable_creepers else 1
         n = generator.nb_points
         grid = TrackGrid(
             x_min=-GRID_MARGIN * TERRAIN_STEP,
@@ -62,8 +66,9 @@ class ParkourArena(Arena):
         adr = m.hfield_adr[self.ceiling_id]
         self._ceiling = m.hfield_data[adr : adr + 2 * grid.ncol].reshape(2, grid.ncol)
         self.water_body = m.body("water").id
-        self.creeper_bodies = np.array([m.body(f"creeper{k}").id for k in range(self._pool)])
-        self.creeper_geoms = np.array([m.geom(f"creeper{k}").id for k in range(self._pool)])
+        names = [f"creeper{k}_{j}" for k in range(self._pool) for j in range(self.segments)]
+        self.creeper_bodies = np.array([m.body(name).id for name in names])
+        self.creeper_geoms = np.array([m.geom(name).id for name in names])
         self._creeper_rgba = m.geom_rgba[self.creeper_geoms[0]].copy()
         self.terrain: ParkourTerrain | None = None
 
@@ -93,17 +98,42 @@ class ParkourArena(Arena):
         finish.size = [0.05, 2.0, half_z]
         self._pool = self.generator.max_creepers()
         for k in range(self._pool):
-            creeper = spec.worldbody.add_body(name=f"creeper{k}", pos=[0.0, 0.0, PARKED_Z])
-            creeper.add_geom(
-                name=f"creeper{k}",
+            self._add_creeper(spec, k)
+        add_grasp_welds(spec, self.body.grasp_sensors)
+
+    def _add_creeper(self, spec: mujoco.MjSpec, k: int) -> None:
+        """Creeper k: one static box, or a chain of hinged segments (movable creepers).
+
+        Geoms and inertial frames start off their body's origin so that moving them at reset
+        is seen (MuJoCo skips the offset of geoms compiled at their body's origin).
+        """
+        parent = spec.worldbody
+        for j in range(self.segments):
+            pos = [0.0, 0.0, PARKED_Z] if j == 0 else [0.0, 0.0, -1.0]
+            body = parent.add_body(name=f"creeper{k}_{j}", pos=pos)
+            if self.segments > 1:
+                body.add_joint(
+                    name=f"creeper{k}_{j}",
+                    type=mujoco.mjtJoint.mjJNT_HINGE,
+                    axis=[0.0, 1.0, 0.0],
+                    range=[-SEGMENT_RANGE, SEGMENT_RANGE],
+                    limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                )
+                body.explicitinertial = True
+                body.mass = SEGMENT_MASS
+                body.ipos = [0.0, 0.0, -0.5]
+                body.inertia = [SEGMENT_MASS / 12] * 3
+            body.add_geom(
+                name=f"creeper{k}_{j}",
                 type=mujoco.mjtGeom.mjGEOM_BOX,
-                size=[0.1, CREEPER_HALF_DEPTH, 0.1],
+                pos=[0.0, 0.0, -0.5],
+                size=[0.1, CREEPER_HALF_DEPTH, 0.5],
                 contype=0,
                 conaffinity=0,
                 group=0,
                 material="creeper",
             )
-        add_grasp_welds(spec, self.body.grasp_sensors)
+            parent = body
 
     def write_terrain(self, terrain: ParkourTerrain) -> None:
         """Ground, ceiling, water level and creepers of one episode, written in place."""
@@ -122,28 +152,28 @@ class ParkourArena(Arena):
         self.version += 1
 
     def _place_creepers(self, creepers: np.ndarray) -> None:
-        m, n = self.model, len(creepers)
-        bodies, geoms = self.creeper_bodies, self.creeper_geoms
-        half = np.column_stack(
-            (
-                (creepers[:, 1] - creepers[:, 0]) / 2,
-                np.full(n, CREEPER_HALF_DEPTH),
-                (creepers[:, 2] - creepers[:, 3]) / 2,
-            )
+        """Hang the first creepers of the pool (K equal segments each); park the others."""
+        m, n, k = self.model, len(creepers), self.segments
+        bodies, geoms = self.creeper_bodies.reshape(-1, k), self.creeper_geoms.reshape(-1, k)
+        piece = (creepers[:, 2] - creepers[:, 3]) / k  # segment length
+        half = np.empty((n, k, 3))
+        half[..., 0] = ((creepers[:, 1] - creepers[:, 0]) / 2)[:, None]
+        half[..., 1] = CREEPER_HALF_DEPTH
+        half[..., 2] = (piece / 2)[:, None]
+        m.body_pos[bodies[:n, 0]] = np.column_stack(
+            ((creepers[:, 0] + creepers[:, 1]) / 2, np.zeros(n), creepers[:, 2])
         )
-        m.body_pos[bodies[:n]] = np.column_stack(
-            (
-                (creepers[:, 0] + creepers[:, 1]) / 2,
-                np.zeros(n),
-                (creepers[:, 2] + creepers[:, 3]) / 2,
-            )
-        )
-        m.geom_size[geoms[:n]] = half
-        m.geom_aabb[geoms[:n], 3:] = half
-        m.geom_rbound[geoms[:n]] = np.linalg.norm(half, axis=1)
-        m.geom_rgba[geoms[:n]] = self._creeper_rgba
-        m.body_pos[bodies[n:]] = (0.0, 0.0, PARKED_Z)
-        m.geom_rgba[geoms[n:], 3] = 0.0  # invisible to renderers and rays
+        m.body_pos[bodies[:n, 1:], 2] = -piece[:, None]
+        m.body_ipos[bodies[:n], 2] = -half[..., 2]
+        m.geom_pos[geoms[:n], 2] = -half[..., 2]
+        used = geoms[:n].ravel()
+        m.geom_size[used] = half.reshape(-1, 3)
+        m.geom_aabb[used, 3:] = half.reshape(-1, 3)
+        m.geom_rbound[used] = np.linalg.norm(half.reshape(-1, 3), axis=1)
+        m.geom_rgba[used] = self._creeper_rgba
+        m.body_pos[bodies[n:, 0]] = (0.0, 0.0, PARKED_Z)
+        m.geom_rgba[geoms[n:].ravel(), 3] = 0.0  # invisible to renderers and rays
+        self.nb_creeper_geoms = used.size
 
     def ceiling_height(self, x: float) -> float:
         return float(self.terrain.ceiling_at(x))
@@ -162,6 +192,8 @@ class ParkourEnv(TrackEnv):
         end_on_death: end the episode when the body drowns or suffocates (default: it keeps
             running with zero actions and the dead flag up, as the original).
         water_clip: the clip of the swimming thrust per force component (the original's 20).
+        movable_creepers: creepers are chains of 4 hinged segments (limits +-0.4 pi) that swing
+            and can be pulled; default: static boxes (the benchmark).
     """
 
     def __init__(
@@ -173,6 +205,7 @@ class ParkourEnv(TrackEnv):
         lidars_type: str | None = None,
         end_on_death: bool = False,
         water_clip: float = PUSH_CLIP,
+        movable_creepers: bool = False,
         frame_skip: int | None = None,
         render_mode: str | None = None,
         width: int = 640,
@@ -190,6 +223,7 @@ class ParkourEnv(TrackEnv):
         self.end_on_death = bool(end_on_death)
         self._lidars_type = lidars_type
         self._water_clip = float(water_clip)
+        self.movable_creepers = bool(movable_creepers)
         super().__init__(
             track="stump",
             body=body,
@@ -211,13 +245,13 @@ class ParkourEnv(TrackEnv):
         # the Parkour task space and generator replace the track ones set by TrackEnv
         self.task_space = parkour_task_space(self.input_space)
         self.generator = ParkourGenerator(start_pad_for(self.body.length))
-        return ParkourArena(self.body, self.generator)
+        return ParkourArena(self.body, self.generator, self.movable_creepers)
 
     def _make_task(self) -> ParkourTask:
         arena, model = self.arena, self.model
         self.water = Water(model, self.bound.body_geom_ids, push_clip=self._water_clip)
         self.climbing = (
-            Climbing(model, self.body.grasp_sensors, CREEPER_HALF_DEPTH)
+            Climbing(model, self.body.grasp_sensors, arena.creeper_geoms)
             if self.body.grasp_sensors
             else None
         )
@@ -280,7 +314,7 @@ class ParkourEnv(TrackEnv):
             self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)
         self.water.clear(self.data)
         if self.climbing:
-            self.climbing.reset(self.data, self.terrain)
+            self.climbing.reset(self.data, self.terrain, self.arena.nb_creeper_geoms)
             self._hang_from_ceiling()
 
     def _hang_from_ceiling(self) -> None:

@@ -38,7 +38,9 @@ class ParkourLidar(Lidar):
     def __init__(self, kind: str, creeper_geoms: np.ndarray):
         super().__init__(kind)
         self._dz = self._vec.reshape(-1, 3)[:, 2].copy()
-        self._creeper_lo, self._creeper_hi = int(creeper_geoms.min()), int(creeper_geoms.max())
+        # geom id -> is a creeper; the extra last entry answers for misses (id -1)
+        self._is_creeper = np.zeros(int(creeper_geoms.max()) + 2, dtype=bool)
+        self._is_creeper[creeper_geoms] = True
         self.water_level = -np.inf
         self.flags = np.zeros(self.nb_rays)
 
@@ -47,7 +49,7 @@ class ParkourLidar(Lidar):
         ids = self.geom_ids
         flags = self.flags
         flags[:] = 0.0
-        flags[(ids >= self._creeper_lo) & (ids <= self._creeper_hi)] = CREEPER_FLAG
+        flags[self._is_creeper[np.minimum(ids, len(self._is_creeper) - 1)]] = CREEPER_FLAG
         height = origin[2] - self.water_level
         if height > 0.0:  # rays from under water do not see its surface
             down = self._dz < 0.0
