@@ -176,6 +176,19 @@ def test_new_task_rewrites_terrain_in_place_and_the_ceiling_collides_from_below(
     assert hit[0] == model.geom("terrain").id and down == pytest.approx(0.5, abs=1e-3)
 
 
+def test_a_body_thrown_up_hits_the_ceiling_and_stays_below_it():
+    env = make()
+    env.reset(seed=0, options={"task": {"terrain_cppn_scale": 40.0}})  # ceiling 5 m up
+    assert env.terrain.ceiling[0] == pytest.approx(5.0)
+    env.data.qvel[env.bound.root_dof + 1] = 15.0
+    hit, top = False, 0.0
+    for _ in range(60):
+        env.step(np.zeros(4))
+        hit |= bool((env.data.contact.geom[: env.data.ncon] == env.arena.ceiling_geom).any())
+        top = max(top, env.data.xpos[env.bound.root_id, 2] + 0.3)  # hull top
+    assert hit and top < 5.0 + 0.15
+
+
 def test_walker_hull_contact_is_not_terminal():
     env = make()
     env.reset(seed=0)
