@@ -14,6 +14,7 @@ from acl3d.bodies.classic_bipedal import ClassicBipedal
 SMALL_LEG_LENGTH = 17 / 30
 WATER_DENSITY = 1.0
 HULL_AREA = 1.084  # m^2, the 5-gon hull of the classic biped
+LIGHT_LIMB_ARMATURE = 0.1  # as in the templates of the other light-limbed bodies
 UPPER_AREA, LOWER_AREA = (8 / 30) * (34 / 30), (6.4 / 30) * (34 / 30)
 
 
@@ -36,6 +37,8 @@ class AmphibiousBipedal(ClassicBipedal):
         spec.geom("hull").mass = HULL_AREA * 1.25 * WATER_DENSITY
         spec.geom("hull").rgba = [0.44, 0.81, 0.14, 1.0]
         for side in ("left", "right"):
+            for joint in ("hip", "knee"):  # legs 4x lighter: the light-limb armature
+                spec.joint(f"{side}_{joint}").armature = LIGHT_LIMB_ARMATURE
             upper, lower = spec.geom(f"{side}_upper"), spec.geom(f"{side}_lower")
             upper.mass = UPPER_AREA * 0.25 * WATER_DENSITY
             lower.mass = LOWER_AREA * 0.25 * WATER_DENSITY

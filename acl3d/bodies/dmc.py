@@ -143,7 +143,7 @@ class Ant(DmcWalker):
 
 
 class CMUHumanoid(DmcWalker):
-    """dm_control's CMU humanoid (V2020, 56 actuated hinges, force limits 40-80 N.m).
+    """dm_control's CMU humanoid (V2020): 56 actuated hinges, joint torque limits 20-300 N.m.
 
     Its MJCF is modelled lying down (y up); dm_control stands it up with the root orientation
     `upright_pose`. acl3d's root joints must be world-aligned, so the walker is attached, turned

@@ -63,6 +63,8 @@ class Millipede(Body):
             segment = mujoco.MjSpec.from_file(str(mjcf_path(self.template)))
             if parent is spec.worldbody:
                 segment.delete(segment.joint("spine"))
+            if j % 2:  # alternate shades so the segments read apart
+                segment.geom("segment").rgba = [0.4, 0.32, 0.75, 1.0]
             spec.attach(segment, prefix=f"seg{j}_", frame=parent.add_frame(pos=pos))
             parent, pos = spec.body(f"seg{j}_segment"), [-SEGMENT, 0.0, 0.0]
         return spec
