@@ -8,6 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 import acl3d  # noqa: F401  (registers the environments)
 from acl3d.envs import parkour_test_sets
+from acl3d.envs.lidar import Lidar
 from acl3d.envs.parkour_task import CREEPER_FLAG, SURVIVAL_STEPS, WATER_FLAG
 from acl3d.envs.water import Water
 from acl3d.terrain.parkour import (
@@ -381,6 +382,26 @@ def test_lidar_sees_water_from_above_only_and_flags_reset_on_misses():
     env.reset(seed=0, options={"task": {"water_level": 1.0}})  # under water: no surface seen
     obs, *_ = env.step(np.zeros(4))
     assert not (obs[-10:] == WATER_FLAG).any()
+
+
+@pytest.mark.parametrize("movable", [False, True])
+def test_analytic_lidar_matches_mujoco_ray_casting(movable):
+    env = make(CLIMBER, movable_creepers=movable, lidars_type="full")
+    task = {"creepers_height": 3.0, "creepers_spacing": 0.5, "input_vector": [-0.3, 1.0, 0.3]}
+    env.reset(seed=0, options={"task": task})
+    lidar, rng = env.task.lidar, np.random.default_rng(0)
+    checked = 0
+    for x in np.linspace(2.0, 60.0, 40):
+        z = rng.uniform(env.terrain.ground_at(x) + 0.3, env.terrain.ceiling_at(x) - 0.3)
+        c = env.terrain.creepers  # mj_ray also reports the box a ray starts in; the original not
+        if np.any((c[:, 0] - 0.05 <= x) & (x <= c[:, 1] + 0.05) & (c[:, 3] - 0.05 <= z)):
+            continue
+        origin = np.array([x, 0.0, z])
+        analytic = lidar.read(env.model, env.data, origin)
+        reference = Lidar.read(lidar, env.model, env.data, origin)
+        assert analytic == pytest.approx(reference, abs=1e-4)
+        checked += int((analytic < 1).sum())
+    assert checked > 50
 
 
 # ---------------------------------------------------------------------------- test sets

@@ -70,6 +70,8 @@ class ParkourArena(Arena):
         self.creeper_bodies = np.array([m.body(name).id for name in names])
         self.creeper_geoms = np.array([m.geom(name).id for name in names])
         self._creeper_rgba = m.geom_rgba[self.creeper_geoms[0]].copy()
+        self.ceiling_heights = np.full(grid.ncol, CEILING_RANGE[1])
+        self.nb_creeper_geoms = 0
         self.terrain: ParkourTerrain | None = None
 
     def customise(self, spec: mujoco.MjSpec) -> None:
@@ -140,12 +142,11 @@ class ParkourArena(Arena):
         self.terrain = terrain
         g = self.grid
         lo, hi = GROUND_RANGE
-        ground = np.interp(g.x, terrain.x, terrain.ground)
-        self.heights = ground
-        self._hfield[:] = np.clip((ground - lo) / (hi - lo), 0.0, 1.0)[None, :]
+        self.heights = np.clip(np.interp(g.x, terrain.x, terrain.ground), lo, hi)
+        self._hfield[:] = ((self.heights - lo) / (hi - lo))[None, :]
         lo, hi = CEILING_RANGE
-        ceiling = np.interp(g.x, terrain.x, terrain.ceiling)
-        self._ceiling[:] = np.clip((hi - ceiling) / (hi - lo), 0.0, 1.0)[None, :]
+        self.ceiling_heights = np.clip(np.interp(g.x, terrain.x, terrain.ceiling), lo, hi)
+        self._ceiling[:] = ((hi - self.ceiling_heights) / (hi - lo))[None, :]
         m = self.model
         m.body_pos[self.water_body, 2] = terrain.water_z - WATER_HALF_HEIGHT
         self._place_creepers(terrain.creepers)
@@ -256,7 +257,7 @@ class ParkourEnv(TrackEnv):
             else None
         )
         kind = self._lidars_type or DEFAULT_LIDARS[self.body.kind]
-        lidar = ParkourLidar(kind, arena.creeper_geoms)
+        lidar = ParkourLidar(kind, arena)
         return ParkourTask(
             self.bound,
             lidar,

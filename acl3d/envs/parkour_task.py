@@ -33,32 +33,84 @@ DEFAULT_LIDARS = {"walker": "down", "amphibian": "down", "climber": "up", "swimm
 
 
 class ParkourLidar(Lidar):
-    """The track lidar plus the water surface (seen from above only) and surface-type flags."""
+    """The track lidar's rays cast analytically on Parkour's surfaces, with surface-type flags.
 
-    def __init__(self, kind: str, creeper_geoms: np.ndarray):
+    Ground and ceiling are piecewise-linear profiles along x (exactly what the heightfields
+    hold), creepers are boxes (static or swinging segments), the water is a horizontal plane seen
+    from above only (the original does not see its surface from inside). Casting 10 rays on
+    these shapes in numpy gives the distances `mj_multiRay` gives (the base class's reading,
+    tested) several times faster on the two 240-column heightfields.
+    """
+
+    def __init__(self, kind: str, arena):
         super().__init__(kind)
-        self._dz = self._vec.reshape(-1, 3)[:, 2].copy()
-        # geom id -> is a creeper; the extra last entry answers for misses (id -1)
-        self._is_creeper = np.zeros(int(creeper_geoms.max()) + 2, dtype=bool)
-        self._is_creeper[creeper_geoms] = True
+        directions = self._vec.reshape(-1, 3)
+        self._directions = directions
+        self._dx, self._dz = directions[:, 0].copy(), directions[:, 2].copy()
+        self.arena = arena
         self.water_level = -np.inf
         self.flags = np.zeros(self.nb_rays)
 
     def read(self, model, data, origin) -> np.ndarray:
-        fraction = super().read(model, data, origin)
-        ids = self.geom_ids
+        """Fractions in [0, 1] (1 = nothing within range); `self.flags` holds the surface types."""
+        x0, z0 = float(origin[0]), float(origin[2])
+        best = np.full(self.nb_rays, self.range)
+        arena = self.arena
+        grid = arena.grid
+        i0 = max(0, int((x0 - self.range - grid.x_min) / grid.cell))
+        i1 = min(grid.ncol - 1, int((x0 + self.range - grid.x_min) / grid.cell) + 1)
+        xs = grid.x_min + grid.cell * np.arange(i0, i1 + 1)
+        for profile in (arena.heights, arena.ceiling_heights):
+            np.minimum(best, self._profile_hits(xs, profile[i0 : i1 + 1], x0, z0), out=best)
         flags = self.flags
         flags[:] = 0.0
-        flags[self._is_creeper[np.minimum(ids, len(self._is_creeper) - 1)]] = CREEPER_FLAG
-        height = origin[2] - self.water_level
+        creepers = self._creeper_hits(model, data, origin)
+        on_creeper = creepers < best
+        best[on_creeper] = creepers[on_creeper]
+        flags[on_creeper] = CREEPER_FLAG
+        height = z0 - self.water_level
         if height > 0.0:  # rays from under water do not see its surface
             down = self._dz < 0.0
             water = np.full(self.nb_rays, np.inf)
-            water[down] = height / -self._dz[down] / self.range
-            hit = water < fraction
-            fraction[hit] = water[hit]
-            flags[hit] = WATER_FLAG
-        return fraction
+            water[down] = height / -self._dz[down]
+            on_water = water < best
+            best[on_water] = water[on_water]
+            flags[on_water] = WATER_FLAG
+        miss = best >= self.range
+        flags[miss] = 0.0
+        return np.where(miss, 1.0, best / self.range)
+
+    def _profile_hits(self, xs, zs, x0, z0) -> np.ndarray:
+        """Distance along each ray to the first crossing of the polyline (xs, zs); inf if none."""
+        ex, ez = np.diff(xs), np.diff(zs)
+        rx, rz = xs[:-1] - x0, zs[:-1] - z0
+        dx, dz = self._dx[:, None], self._dz[:, None]
+        denom = dx * ez - dz * ex  # d x e
+        safe = np.where(denom == 0.0, 1.0, denom)
+        t = (rx * ez - rz * ex) / safe  # (r x e) / (d x e)
+        u = (rx * dz - rz * dx) / safe  # (r x d) / (d x e)
+        valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0)
+        return np.where(valid, t, np.inf).min(axis=1)
+
+    def _creeper_hits(self, model, data, origin) -> np.ndarray:
+        """Distance along each ray to the nearest creeper box entered from outside; inf if none."""
+        geoms = self.arena.creeper_geoms[: self.arena.nb_creeper_geoms]
+        centres = data.geom_xpos[geoms]
+        near = np.linalg.norm(centres - origin, axis=1) <= self.range + model.geom_rbound[geoms]
+        if not near.any():
+            return np.full(self.nb_rays, np.inf)
+        geoms, centres = geoms[near], centres[near]
+        rot = data.geom_xmat[geoms].reshape(-1, 3, 3)
+        size = model.geom_size[geoms]
+        o_local = np.einsum("nkj,nk->nj", rot, origin - centres)  # R^T (o - c)
+        d_local = np.einsum("nkj,rk->rnj", rot, self._directions)
+        d_local[np.abs(d_local) < 1e-12] = 1e-12
+        t1 = (-size - o_local) / d_local
+        t2 = (size - o_local) / d_local
+        t_in = np.minimum(t1, t2).max(axis=-1)
+        t_out = np.maximum(t1, t2).min(axis=-1)
+        hit = (t_in <= t_out) & (t_in > 0.0)
+        return np.where(hit, t_in, np.inf).min(axis=1)
 
 
 class ParkourTask(TrackTask):
