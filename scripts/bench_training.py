@@ -5,28 +5,70 @@ and vs Gymnasium's Walker2d-v5 under the same student settings.
     python scripts/bench_training.py --students ppo --envs 2 --ppo-steps 8192
 
 Every cell is `model.learn()` steps per wall-clock second after a warm-up (PPO: whole rollouts;
-SAC: past learning_starts, so gradient steps are included). Ratios compare cells measured in
-this same run; on shared machines repeat with --repeats and read the best.
+SAC: past learning_starts, so gradient steps are included). "Stump, no teacher" draws the same
+uniform tasks inside the env (no teacher, no curriculum sync), so teacher/no-teacher is the cost
+of the teacher in the loop. Ratios compare cells measured in this same run; on shared machines
+repeat with --repeats and read the best.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 
+import gymnasium as gym
+import numpy as np
 import torch
-from stable_baselines3.common.vec_env import VecNormalize
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 from acl3d.training import students
 from acl3d.training.curriculum import CurriculumVecEnv
 from acl3d.training.workers import make_env, make_vec_env
 
 
+class UniformTasks(gym.Wrapper):
+    """The no-teacher baseline: the env itself draws a uniform task at every reset.
+
+    Same task distribution as the Random teacher, so episode lengths (and reset costs) match
+    the teacher runs and the ratio isolates the teacher + curriculum-sync overhead."""
+
+    def __init__(self, env, seed: int):
+        super().__init__(env)
+        self.space = env.unwrapped.task_space
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, *, seed=None, options=None):
+        task = self.rng.uniform(self.space.low, self.space.high)
+        return self.env.reset(seed=seed, options={**(options or {}), "task": task})
+
+
+def make_uniform_stump(seed: int):
+    return UniformTasks(make_env("stump-tracks", "classic_bipedal"), seed)
+
+
+class TimedCurriculumVecEnv(CurriculumVecEnv):
+    """Counts the wall time spent on the teacher side (sampling, pushing, reporting)."""
+
+    teacher_time = 0.0
+
+    def _push(self, index):
+        start = time.perf_counter()
+        super()._push(index)
+        TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
+
+    def _report(self, worker, info):
+        start = time.perf_counter()
+        super()._report(worker, info)
+        TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
+
+
 def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
     if kind == "walker2d":
         venv = make_vec_env("Walker2d-v5", None, n_envs, curriculum=False)
     elif kind == "stump":
-        venv = make_vec_env("stump-tracks", "classic_bipedal", n_envs, curriculum=False)
+        fns = [functools.partial(make_uniform_stump, seed + i) for i in range(n_envs)]
+        venv = DummyVecEnv(fns) if n_envs == 1 else SubprocVecEnv(fns, "forkserver")
     else:
         from acl3d.teachers.controller import TeacherController
 
@@ -34,7 +76,7 @@ def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
         space = probe.unwrapped.task_space
         probe.close()
         controller = TeacherController(teacher, space, seed, env_name="stump-tracks")
-        venv = CurriculumVecEnv(
+        venv = TimedCurriculumVecEnv(
             make_vec_env("stump-tracks", "classic_bipedal", n_envs, curriculum=True), controller
         )
     if students.uses_vecnormalize(student):
@@ -42,16 +84,21 @@ def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
     return venv
 
 
-def measure(kind: str, student: str, n_envs: int, steps: int, warmup: int, teacher: str) -> float:
+def measure(kind: str, student: str, n_envs: int, steps: int, warmup: int, teacher: str):
+    """(steps/s, share of the wall time spent on the teacher side)."""
     env = build_env(kind, n_envs, teacher, 0, student)
     try:
         params = students.hyperparameters(student, "fast", n_envs)
         model = students.build(student, params, env, seed=0)
         model.learn(warmup)
+        TimedCurriculumVecEnv.teacher_time = 0.0
         start = time.perf_counter()
         before = model.num_timesteps
         model.learn(steps, reset_num_timesteps=False)
-        return (model.num_timesteps - before) / (time.perf_counter() - start)
+        elapsed = time.perf_counter() - start
+        return (
+            model.num_timesteps - before
+        ) / elapsed, TimedCurriculumVecEnv.teacher_time / elapsed
     finally:
         env.close()
 
@@ -74,14 +121,19 @@ def main() -> None:
         warmup = 2048 if student == "ppo" else 1000  # one rollout / learning_starts
         for n_envs in args.envs:
             best = {k: 0.0 for k in kinds}
+            share = 1.0
             for _ in range(args.repeats):
                 for kind in kinds:  # interleaved, so load changes hit all three alike
-                    sps = measure(kind, student, n_envs, steps, warmup, args.teacher)
+                    sps, teacher_share = measure(kind, student, n_envs, steps, warmup, args.teacher)
                     best[kind] = max(best[kind], sps)
+                    if kind == "teacher":
+                        share = min(share, teacher_share)
+            best["share"] = share
             rows.append((student, n_envs, best))
             print(
                 f"  measured {student} x{n_envs}: "
-                + ", ".join(f"{k} {v:.0f}" for k, v in best.items()),
+                + ", ".join(f"{k} {best[k]:.0f}" for k in kinds)
+                + f", teacher side {100 * share:.1f}% of the wall time",
                 flush=True,
             )
 
@@ -89,13 +141,14 @@ def main() -> None:
     print(f"training steps/s (SB3 'fast' preset; teacher = {args.teacher}; best of {args.repeats})")
     print(
         "| student | envs | Stump+teacher | Stump, no teacher | Walker2d-v5 "
-        "| teacher/no-teacher | Stump+teacher/Walker2d |"
+        "| teacher/no-teacher | teacher-side time | Stump+teacher/Walker2d |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for student, n_envs, b in rows:
         print(
             f"| {student} | {n_envs} | {b['teacher']:.0f} | {b['stump']:.0f} | {b['walker2d']:.0f} "
-            f"| {b['teacher'] / b['stump']:.2f} | {b['teacher'] / b['walker2d']:.2f} |"
+            f"| {b['teacher'] / b['stump']:.2f} | {100 * b['share']:.1f}% "
+            f"| {b['teacher'] / b['walker2d']:.2f} |"
         )
 
 

@@ -214,10 +214,12 @@ def run(args) -> int:
     from acl3d.training import train
 
     options = options_from_args(args)
-    if args.resume:
-        result = train(resume=args.resume, **options)
-    else:
-        result = train(options)
+    try:
+        result = train(resume=args.resume, **options) if args.resume else train(options)
+    except KeyboardInterrupt:
+        where = args.resume or options.get("out")
+        print(f"acl3d train: interrupted; continue with: acl3d train --resume {where}")
+        return 130
     final = result.final_eval or {}
     print(
         f"run {result.run_dir}: {result.steps} steps, "

@@ -10,6 +10,8 @@ the environment episodes that were in flight.
 from __future__ import annotations
 
 import dataclasses
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -488,11 +490,18 @@ def train(config: TrainConfig | dict | None = None, *, resume=None, **overrides)
     return _run(session, config, run, resume_from)
 
 
+def _interrupt_on_sigterm(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def _run(
     session: _Session, config: TrainConfig, run: RunDir, resume_from: Path | None
 ) -> TrainResult:
     run.set_status("running")
     callback = None
+    # Batch schedulers stop jobs with SIGTERM: end like Ctrl-C, with the status written.
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _interrupt_on_sigterm) if in_main else None
     try:
         with session:
             session.build_student()
@@ -532,6 +541,8 @@ def _run(
     finally:
         if callback is not None:
             callback.close()
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
     run.set_status("finished", steps=int(model.num_timesteps))
     return TrainResult(run.path, int(model.num_timesteps), final)
 
