@@ -47,6 +47,9 @@ class ParkourLidar(Lidar):
         directions = self._vec.reshape(-1, 3)
         self._directions = directions
         self._dx, self._dz = directions[:, 0].copy(), directions[:, 2].copy()
+        # how far back and ahead along x the rays reach
+        self._reach_back = self.range * min(0.0, self._dx.min())
+        self._reach_ahead = self.range * max(0.0, self._dx.max())
         self.arena = arena
         self.water_level = -np.inf
         self.flags = np.zeros(self.nb_rays)
@@ -57,11 +60,14 @@ class ParkourLidar(Lidar):
         best = np.full(self.nb_rays, self.range)
         arena = self.arena
         grid = arena.grid
-        i0 = max(0, int((x0 - self.range - grid.x_min) / grid.cell))
-        i1 = min(grid.ncol - 1, int((x0 + self.range - grid.x_min) / grid.cell) + 1)
+        i0 = max(0, int((x0 + self._reach_back - grid.x_min) / grid.cell))
+        i1 = min(grid.ncol - 1, int((x0 + self._reach_ahead - grid.x_min) / grid.cell) + 1)
         xs = grid.x_min + grid.cell * np.arange(i0, i1 + 1)
-        for profile in (arena.heights, arena.ceiling_heights):
-            np.minimum(best, self._profile_hits(xs, profile[i0 : i1 + 1], x0, z0), out=best)
+        ground, ceiling = arena.heights[i0 : i1 + 1], arena.ceiling_heights[i0 : i1 + 1]
+        if ground.max() >= z0 - self.range:  # skip profiles out of reach
+            np.minimum(best, self._profile_hits(xs, ground, x0, z0), out=best)
+        if ceiling.min() <= z0 + self.range:
+            np.minimum(best, self._profile_hits(xs, ceiling, x0, z0), out=best)
         flags = self.flags
         flags[:] = 0.0
         creepers = self._creeper_hits(model, data, origin)
