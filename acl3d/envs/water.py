@@ -1,4 +1,4 @@
-"""Still water below a level: buoyancy, drag, lift and swimming thrust on a body, in numpy.
+"""Still water below a level: buoyancy, drag, lift and swimming thrust on a body.
 
 MuJoCo's fluid model is global and has no buoyancy, so Parkour computes its own forces each
 control step and writes them to `data.xfrc_applied` (they act during the whole control step, as
@@ -131,9 +131,6 @@ class Water:
                         float(model.body_inertia[b].max()),
                     )
         return tables
-
-    def submerged(self, z) -> np.ndarray:
-        return np.asarray(z) <= self.level
 
     def apply(self, data: mujoco.MjData) -> float:
         """Write this step's water forces into data.xfrc_applied; return the submerged area.
