@@ -1,4 +1,8 @@
-"""Embodiments: `make_body(name, planar=..., **options)`; `BODIES` lists the names."""
+"""Embodiments: `make_body(name, planar=..., **options)`; `BODIES` lists the names.
+
+Every TeachMyAgent body (walkers, climbers, the fish swimmer, the amphibian) plus dm_control's
+locomotion walkers under a "dmc:" prefix (dm_control is imported only when one is built).
+"""
 
 from __future__ import annotations
 
@@ -7,23 +11,24 @@ import inspect
 
 from acl3d.bodies.base import Body, BoundBody, GraspSensor, Motor
 
-# name -> "module:Class"
+# name -> "module:Class", in TeachMyAgent's order: walkers, climbers, swimmer, amphibian
 _REGISTRY: dict[str, str] = {
     "classic_bipedal": "acl3d.bodies.classic_bipedal:ClassicBipedal",
+    "small_bipedal": "acl3d.bodies.bipeds:SmallBipedal",
+    "big_quadru": "acl3d.bodies.quadruped:BigQuadru",
+    "spider": "acl3d.bodies.spider:Spider",
+    "millipede": "acl3d.bodies.millipede:Millipede",
     "profile_chimpanzee": "acl3d.bodies.chimpanzee:ProfileChimpanzee",
+    "wheel": "acl3d.bodies.wheel:Wheel",
     "climbing_profile_chimpanzee": "acl3d.bodies.chimpanzee:ClimbingProfileChimpanzee",
     "climbing_chest_profile_chimpanzee": "acl3d.bodies.chimpanzee:ClimbingChestProfileChimpanzee",
     "fish": "acl3d.bodies.fish:Fish",
-    "small_bipedal": "acl3d.bodies.bipeds:SmallBipedal",
     "amphibious_bipedal": "acl3d.bodies.bipeds:AmphibiousBipedal",
-    "big_quadru": "acl3d.bodies.quadruped:BigQuadru",
-    "wheel": "acl3d.bodies.wheel:Wheel",
-    "spider": "acl3d.bodies.spider:Spider",
-    "millipede": "acl3d.bodies.millipede:Millipede",
     "dmc:ant": "acl3d.bodies.dmc:Ant",
     "dmc:cmu_humanoid": "acl3d.bodies.dmc:CMUHumanoid",
 }
-# TeachMyAgent names of older variants that map onto ours
+# TeachMyAgent names of older variants that map onto ours (the "old" ones differ only by the
+# spawn mis-placement bug and, for the quadruped, leg anchors at -1.2/+0.85 of the half hull)
 ALIASES: dict[str, str] = {
     "old_classic_bipedal": "classic_bipedal",
     "old_big_quadru": "big_quadru",

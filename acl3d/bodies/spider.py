@@ -16,7 +16,7 @@ from acl3d.bodies.base import Body, Motor, check_range
 
 HALF_WIDTH = 10 / 30  # trunk half-size
 LEG_DOWN = 4 / 30  # hips below the trunk centre
-FOOT_DROP = 0.688  # lowest foot point below the trunk centre at rest (0.25/0.7/0.9 pi segments)
+FOOT_DROP = 0.692  # lowest foot point below the trunk centre at rest (0.25/0.7/0.9 pi segments)
 PAIR_SPREAD = 0.25  # outermost pairs' |y|, metres
 MAX_PAIRS = 8
 SIDES = (("back", -1.0), ("front", 1.0))  # name, x side of the trunk
