@@ -74,11 +74,8 @@ def describe(name: str, rate_steps: int) -> dict:
     envs = {p: gym.make(ENV_ID, body=name, planar=p).unwrapped for p in (True, False)}
     body = envs[True].body
     gears = envs[True].model.actuator_gear[envs[True].bound.actuator_ids, 0]
-    torque = (
-        f"{body.torque:g}"
-        if np.all(gears == 1.0)
-        else f"per joint {body.torque * gears.min():g}-{body.torque * gears.max():g}"
-    )
+    caps = body.torque * gears  # joint torque at |a| = 1 (dm_control walkers: per joint)
+    torque = f"{caps.min():g}" if caps.min() == caps.max() else f"{caps.min():g}-{caps.max():g}"
     return {
         "body": name,
         "type": body.kind,
