@@ -13,15 +13,16 @@ import argparse
 import time
 from pathlib import Path
 
-import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
 import gymnasium as gym
 import numpy as np
+
+import acl3d  # noqa: F401  (before mujoco: picks the headless GL backend)
 
 ORIGINAL_STEPS, ORIGINAL_RESET_MS = 6200, 6.5
 CASES = {  # body -> (task, kwargs): each body on the terrain it is meant for
     "classic_bipedal": ({"water_level": 0.0}, {}),
     "climbing_profile_chimpanzee": ({"creepers_height": 2.0, "creepers_spacing": 2.0}, {}),
-    "fish": ({"water_level": 1.0}, {}),
+    "fish": ({"water_level": 0.95}, {}),
 }
 
 
@@ -63,16 +64,22 @@ def water_us(env, wet: bool, n: int = 2000) -> float:
 
 
 def render(body: str, task: dict, kwargs: dict, out: Path, steps: int = 40) -> Path:
+    import imageio.v3 as iio
+    import mujoco
+
     env = gym.make("acl3d/Parkour-v0", body=body, render_mode="rgb_array", **kwargs)
     env.reset(seed=1, options={"task": task})
+    u = env.unwrapped
+    if not u.climbing:  # show some terrain: start further down the track
+        x = 14.0
+        u.bound.place(u.data, x, u.terrain.ground_at(x) + u.body.spawn_height)
+        mujoco.mj_forward(u.model, u.data)
     rng = np.random.default_rng(1)
     for _ in range(steps):
         action = rng.uniform(-0.3, 0.3, env.action_space.shape)
         if env.unwrapped.climbing:
             action[-len(env.unwrapped.body.grasp_sensors) :] = 1.0
         env.step(action)
-    import imageio.v3 as iio
-
     path = out / f"parkour_{body}.png"
     iio.imwrite(path, env.render())
     env.close()
@@ -107,7 +114,7 @@ def main() -> None:
         for body, (task, kwargs) in CASES.items():
             render_task = dict(task)
             if body == "classic_bipedal":
-                render_task.update(water_level=0.9, creepers_height=1.0)
+                render_task.update(input_vector=[-0.3, 0.7, 0.1], water_level=0.7)
             print("wrote", render(body, render_task, kwargs, args.out))
 
 

@@ -44,6 +44,7 @@ MOVABLE_SEGMENTS = 4  # a movable creeper is a chain of 4 equal segments
 SEGMENT_MASS = 5.0 * 0.25 * 1.0  # density 5 on a 0.25 x 1 m piece, as the original's pieces
 SEGMENT_RANGE = 0.4 * np.pi  # joint limits between pieces
 WATER_HALF_HEIGHT = 100.0
+WATER_HALF_WIDTH = 1.98  # just inside the terrain faces (y = +-2), so they do not z-fight
 HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
 
 
@@ -93,7 +94,7 @@ class ParkourArena(Arena):
             wall = spec.geom(name)
             wall.size = [half_length, wall.size[1], half_z]
             wall.pos = [centre_x, wall.pos[1], mid_z]
-        spec.geom("water").size = [half_length, 2.0, WATER_HALF_HEIGHT]
+        spec.geom("water").size = [half_length, WATER_HALF_WIDTH, WATER_HALF_HEIGHT]
         spec.body("water").pos = [centre_x, 0.0, PARKED_Z]
         finish = spec.geom("finish_line")
         finish.pos = [self.generator.end_x, 0.0, mid_z]
