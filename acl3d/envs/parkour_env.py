@@ -177,9 +177,6 @@ class ParkourArena(Arena):
         m.geom_rgba[geoms[n:].ravel(), 3] = 0.0  # invisible to renderers and rays
         self.nb_creeper_geoms = used.size
 
-    def ceiling_height(self, x: float) -> float:
-        return float(self.terrain.ceiling_at(x))
-
 
 class ParkourEnv(TrackEnv):
     """Parkour with any body: task = CPPN input (3), water level, creepers (3), CPPN scale.
