@@ -51,6 +51,9 @@ class ParkourLidar(Lidar):
         self._reach_back = self.range * min(0.0, self._dx.min())
         self._reach_ahead = self.range * max(0.0, self._dx.max())
         self.arena = arena
+        self._grid_x = arena.grid.x
+        with np.errstate(divide="ignore"):  # distance per metre of height to the water plane
+            self._inv_down = np.where(self._dz < 0.0, -1.0 / self._dz, np.inf)
         self.water_level = -np.inf
         self.flags = np.zeros(self.nb_rays)
 
@@ -62,7 +65,7 @@ class ParkourLidar(Lidar):
         grid = arena.grid
         i0 = max(0, int((x0 + self._reach_back - grid.x_min) / grid.cell))
         i1 = min(grid.ncol - 1, int((x0 + self._reach_ahead - grid.x_min) / grid.cell) + 1)
-        xs = grid.x_min + grid.cell * np.arange(i0, i1 + 1)
+        xs = self._grid_x[i0 : i1 + 1]
         ground, ceiling = arena.heights[i0 : i1 + 1], arena.ceiling_heights[i0 : i1 + 1]
         if ground.max() >= z0 - self.range:  # skip profiles out of reach
             np.minimum(best, self._profile_hits(xs, ground, x0, z0), out=best)
@@ -71,14 +74,13 @@ class ParkourLidar(Lidar):
         flags = self.flags
         flags[:] = 0.0
         creepers = self._creeper_hits(model, data, origin)
-        on_creeper = creepers < best
-        best[on_creeper] = creepers[on_creeper]
-        flags[on_creeper] = CREEPER_FLAG
+        if creepers is not None:
+            on_creeper = creepers < best
+            best[on_creeper] = creepers[on_creeper]
+            flags[on_creeper] = CREEPER_FLAG
         height = z0 - self.water_level
         if height > 0.0:  # rays from under water do not see its surface
-            down = self._dz < 0.0
-            water = np.full(self.nb_rays, np.inf)
-            water[down] = height / -self._dz[down]
+            water = height * self._inv_down  # inf for rays that do not go down
             on_water = water < best
             best[on_water] = water[on_water]
             flags[on_water] = WATER_FLAG
@@ -88,7 +90,7 @@ class ParkourLidar(Lidar):
 
     def _profile_hits(self, xs, zs, x0, z0) -> np.ndarray:
         """Distance along each ray to the first crossing of the polyline (xs, zs); inf if none."""
-        ex, ez = np.diff(xs), np.diff(zs)
+        ex, ez = self.arena.grid.cell, np.diff(zs)
         rx, rz = xs[:-1] - x0, zs[:-1] - z0
         dx, dz = self._dx[:, None], self._dz[:, None]
         denom = dx * ez - dz * ex  # d x e
@@ -98,17 +100,21 @@ class ParkourLidar(Lidar):
         valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0)
         return np.where(valid, t, np.inf).min(axis=1)
 
-    def _creeper_hits(self, model, data, origin) -> np.ndarray:
-        """Distance along each ray to the nearest creeper box entered from outside; inf if none."""
+    def _creeper_hits(self, model, data, origin) -> np.ndarray | None:
+        """Distance along each ray to the nearest creeper box entered from outside (inf: none);
+        None when no creeper is within reach."""
         geoms = self.arena.creeper_geoms[: self.arena.nb_creeper_geoms]
-        centres = data.geom_xpos[geoms]
-        near = np.linalg.norm(centres - origin, axis=1) <= self.range + model.geom_rbound[geoms]
+        if not len(geoms):
+            return None
+        offsets = data.geom_xpos[geoms] - origin
+        reach = self.range + model.geom_rbound[geoms]
+        near = np.einsum("ij,ij->i", offsets, offsets) <= reach * reach
         if not near.any():
-            return np.full(self.nb_rays, np.inf)
-        geoms, centres = geoms[near], centres[near]
+            return None
+        geoms, offsets = geoms[near], offsets[near]
         rot = data.geom_xmat[geoms].reshape(-1, 3, 3)
         size = model.geom_size[geoms]
-        o_local = np.einsum("nkj,nk->nj", rot, origin - centres)  # R^T (o - c)
+        o_local = -np.einsum("nkj,nk->nj", rot, offsets)  # R^T (o - c)
         d_local = np.einsum("nkj,rk->rnj", rot, self._directions)
         d_local[np.abs(d_local) < 1e-12] = 1e-12
         t1 = (-size - o_local) / d_local
