@@ -110,6 +110,11 @@ class Climbing:
         if not len(g):
             return ceiling
         rel = points[:, None, :] - data.geom_xpos[g][None, :, :]
+        reach = self.model.geom_rbound[g] + pad.max()
+        near = (np.einsum("snk,snk->sn", rel, rel) <= reach * reach).any(axis=0)
+        if not near.any():
+            return ceiling
+        g, rel = g[near], rel[:, near]
         local = np.einsum("snk,nkj->snj", rel, data.geom_xmat[g].reshape(-1, 3, 3))
         inside = np.all(np.abs(local) <= self.model.geom_size[g] + pad[:, None, None], axis=-1)
         on_creeper = inside.any(axis=1) & ~ceiling  # the ceiling wins when both are touched
