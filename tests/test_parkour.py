@@ -5,6 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d  # noqa: F401  (registers the environments)
 from acl3d.envs import parkour_test_sets
@@ -135,12 +136,20 @@ def test_bad_options_raise():
 
 # ---------------------------------------------------------------------------- environment API
 @pytest.mark.parametrize(
-    "body, size", [("classic_bipedal", 36), (CLIMBER, 54), ("fish", 43), ("amphibious_bipedal", 36)]
+    "body, size, options",
+    [
+        ("classic_bipedal", 36, {}),
+        (CLIMBER, 54, {}),
+        (CLIMBER, 54, {"movable_creepers": True}),
+        ("fish", 43, {}),
+        ("amphibious_bipedal", 36, {}),
+    ],
 )
-def test_check_env_and_observation_sizes(body, size):
-    env = make(body)
+def test_check_env_and_observation_sizes(body, size, options):
+    env = make(body, **options)
     assert env.observation_space.shape == (size,)
     check_env(env, skip_render_check=True)
+    sb3_check_env(env, warn=False)
 
 
 def test_planar_fish_has_the_original_38_values():
