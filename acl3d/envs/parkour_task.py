@@ -22,7 +22,7 @@ import numpy as np
 
 from acl3d.bodies.base import BoundBody
 from acl3d.envs.climbing import Climbing
-from acl3d.envs.lidar import Lidar
+from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
 from acl3d.envs.track_task import FAIL_REWARD, TrackTask
 from acl3d.envs.water import Water
 
@@ -32,21 +32,25 @@ PARKOUR_CRITICAL_WALKERS = ("profile_chimpanzee",)  # the chimpanzee's head is a
 DEFAULT_LIDARS = {"walker": "down", "amphibian": "down", "climber": "up", "swimmer": "full"}
 
 
-class ParkourLidar(Lidar):
-    """The track lidar's rays cast analytically on Parkour's surfaces, with surface-type flags.
+class ParkourLidar:
+    """The original's 10 rays cast analytically on Parkour's surfaces, with surface-type flags.
 
+    Same rays as the track lidar (`acl3d.envs.lidar`: angles a*i/10 + b per type, 5.33 m).
     Ground and ceiling are piecewise-linear profiles along x (exactly what the heightfields
     hold), creepers are boxes (static or swinging segments), the water is a horizontal plane seen
-    from above only (the original does not see its surface from inside). Casting 10 rays on
-    these shapes in numpy gives the distances `mj_multiRay` gives (the base class's reading,
-    tested) several times faster on the two 240-column heightfields.
+    from above only (the original does not see its surface from inside). Casting on these
+    shapes in numpy gives the distances `mj_multiRay` gives (tested) several times faster on
+    the two 240-column heightfields.
     """
 
-    def __init__(self, kind: str, arena):
-        super().__init__(kind)
-        directions = self._vec.reshape(-1, 3)
-        self._directions = directions
-        self._dx, self._dz = directions[:, 0].copy(), directions[:, 2].copy()
+    def __init__(self, kind: str, arena, nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE):
+        if kind not in LIDAR_TYPES:
+            raise ValueError(f"lidar type {kind!r}; valid: {list(LIDAR_TYPES)}")
+        a, b = LIDAR_TYPES[kind]
+        angles = a * np.arange(nb_rays) / nb_rays + b
+        self.kind, self.nb_rays, self.range = kind, nb_rays, ray_range
+        self.directions = np.stack([np.sin(angles), np.zeros(nb_rays), -np.cos(angles)], axis=1)
+        self._dx, self._dz = self.directions[:, 0].copy(), self.directions[:, 2].copy()
         # how far back and ahead along x the rays reach
         self._reach_back = self.range * min(0.0, self._dx.min())
         self._reach_ahead = self.range * max(0.0, self._dx.max())
@@ -115,7 +119,7 @@ class ParkourLidar(Lidar):
         rot = data.geom_xmat[geoms].reshape(-1, 3, 3)
         size = model.geom_size[geoms]
         o_local = -np.einsum("nkj,nk->nj", rot, offsets)  # R^T (o - c)
-        d_local = np.einsum("nkj,rk->rnj", rot, self._directions)
+        d_local = np.einsum("nkj,rk->rnj", rot, self.directions)
         d_local[np.abs(d_local) < 1e-12] = 1e-12
         t1 = (-size - o_local) / d_local
         t2 = (size - o_local) / d_local
