@@ -204,6 +204,8 @@ class _Session:
         self.params = _student_params(config)
         self.train_env = None
         self.eval_env = None
+        self.started = time.perf_counter()
+        self.previous_wall_time = 0.0
 
     def __enter__(self):
         c = self.config
@@ -260,8 +262,13 @@ class _Session:
         progress = load_state(folder / "progress")
         self.curriculum_env.total_steps = int(progress["num_timesteps"])
         self.curriculum_env.episodes_done = int(progress["episodes_done"])
+        self.previous_wall_time = float(progress.get("wall_time_s", 0.0))
         self.train_env.seed(c.seed + int(progress["num_timesteps"]))
         ckpt.set_rng_state(load_state(folder / "rng"))
+
+    def wall_time(self) -> float:
+        """Seconds of training so far, over all sessions of the run."""
+        return self.previous_wall_time + time.perf_counter() - self.started
 
     def save_checkpoint(self) -> Path:
         model, run = self.model, self.run
@@ -278,6 +285,7 @@ class _Session:
             "num_timesteps": int(model.num_timesteps),
             "episodes_done": int(self.curriculum_env.episodes_done),
             "time": time.time(),
+            "wall_time_s": self.wall_time(),
         }
         save_state(folder / "progress", progress)  # written last: marks the folder complete
         run.publish_checkpoint(folder)
@@ -322,7 +330,6 @@ class TrainingCallback(BaseCallback):
             session.run.evals_tasks_csv,
             ["step", "task_index", "return", "length", "success", *self.task_names],
         )
-        self.t0 = time.perf_counter()
 
     def close(self):
         for log in (self.episodes, self.evals, self.eval_tasks):
@@ -393,7 +400,7 @@ class TrainingCallback(BaseCallback):
                 f"{summary['std_return']:.6g}",
                 f"{summary['mean_length']:.6g}",
                 summary["n_tasks"],
-                f"{time.perf_counter() - self.t0:.1f}",
+                f"{self.s.wall_time():.1f}",
             ]
         )
         for i, (task, ret, length, success) in enumerate(
