@@ -81,6 +81,7 @@ def test_registry_lists_every_teachmyagent_body():
     assert {k for k in kinds.values()} == {"walker", "climber", "swimmer", "amphibian"}
 
 
+@pytest.mark.filterwarnings("ignore:.*Box observation space (minimum|maximum)")  # unbounded obs
 @pytest.mark.parametrize("planar", MODES)
 @pytest.mark.parametrize("name", BODIES)
 def test_builds_passes_check_env_and_has_the_original_sizes(name, planar):
