@@ -6,6 +6,7 @@ teacher's CPU seconds per 1000 episodes (process time inside sample_task/updates
 original teachDeepRL results. Teachers whose module cannot be imported are skipped. Teachers that
 need more than returns get success = reward > 0.75 and one-step episodes (see
 `acl3d.toy.run_teacher`); ADR and the oracle get toy reward thresholds (`toy_teacher_params`).
+A teacher that both presets configure alike (e.g. one neither preset mentions) runs once.
 
     python scripts/bench_teachers.py                      # full run (several minutes)
     python scripts/bench_teachers.py --seeds 1 --episodes 5000 --teachers alp-gmm,riac
@@ -14,6 +15,7 @@ need more than returns get success = reward > 0.75 and one-step episodes (see
 from __future__ import annotations
 
 import argparse
+import inspect
 import math
 import sys
 import time
@@ -41,6 +43,15 @@ def bench_one(
     result = run_teacher(teacher, env, episodes, score_every=every)
     by_episode = dict(zip(result.episodes, result.scores))
     return [by_episode[c] for c in checkpoints], result.cpu_per_1000
+
+
+def effective_params(name: str, preset: str) -> dict:
+    """Class defaults overridden by the preset (presets omit what equals the defaults)."""
+    sig = inspect.signature(teacher_class(name).__init__)
+    params = {
+        k: p.default for k, p in sig.parameters.items() if k not in ("self", "task_space", "seed")
+    }
+    return params | preset_params(preset, name)
 
 
 def main(argv=None) -> int:
@@ -74,28 +85,31 @@ def main(argv=None) -> int:
         f"| teacher | preset | {head} | tDRL 20k | score ratio | CPU s/1000 ep | tDRL CPU | CPU ratio |",
         "|" + "---|" * (len(checkpoints) + 7),
     ]
+    done: dict[tuple[str, str], tuple] = {}  # a teacher the presets configure alike runs once
     for preset in presets:
         for name in available:
-            scores, cpus = [], []
-            t0 = time.time()
-            for seed in range(args.seeds):
-                s, cpu = bench_one(name, preset, seed, args.episodes, checkpoints)
-                scores.append(s)
-                cpus.append(cpu)
-            scores_arr = np.asarray(scores)
-            mean, std = scores_arr.mean(axis=0), scores_arr.std(axis=0)
-            cpu = float(np.mean(cpus))
+            key = (name, repr(sorted(effective_params(name, preset).items())))
+            if key not in done:
+                scores, cpus = [], []
+                t0 = time.time()
+                for seed in range(args.seeds):
+                    s, cpu = bench_one(name, preset, seed, args.episodes, checkpoints)
+                    scores.append(s)
+                    cpus.append(cpu)
+                scores_arr = np.asarray(scores)
+                done[key] = (scores_arr.mean(axis=0), scores_arr.std(axis=0), float(np.mean(cpus)))
+                print(
+                    f"done {name} ({preset}) in {time.time() - t0:.0f} s",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            mean, std, cpu = done[key]
             ref_s, ref_c = REF_SCORE_20K.get(name), REF_CPU_PER_1000.get(name)
             cells = " | ".join(f"{m:.1f} ± {s:.1f}" for m, s in zip(mean, std))
             score_ratio = f"{mean[-1] / ref_s:.2f}" if ref_s and checkpoints[-1] == 20000 else "–"
             cpu_ratio = f"{cpu / ref_c:.2f}" if ref_c else "–"
             rows.append(
                 f"| {name} | {preset} | {cells} | {ref_s if ref_s is not None else '–'} | {score_ratio} | {cpu:.3f} | {ref_c if ref_c is not None else '–'} | {cpu_ratio} |"
-            )
-            print(
-                f"done {name} ({preset}) in {time.time() - t0:.0f} s: {cells}; CPU {cpu:.3f} s/1000",
-                file=sys.stderr,
-                flush=True,
             )
     print(
         f"\n{args.seeds} seeds, {args.episodes} episodes, 2-D toy, 10 cubes/dim; tDRL references: 5 seeds, 20k episodes, tDRL defaults."
