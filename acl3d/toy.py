@@ -42,6 +42,8 @@ class ToyEnv:
         ):
             if not isinstance(value, (int, np.integer)) or value < lo:
                 raise ValueError(f"{what} must be an integer >= {lo}, got {value!r}")
+        if nb_dims > 16:  # the unlock rule looks at 2**nb_dims - 1 neighbours
+            raise ValueError(f"nb_dims must be <= 16, got {nb_dims}")
         if nb_cubes**nb_dims > 10_000_000:
             raise ValueError(
                 f"nb_cubes**nb_dims = {nb_cubes}**{nb_dims} cubes is too many (max 1e7)"

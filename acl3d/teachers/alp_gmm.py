@@ -294,29 +294,38 @@ class GMMTeacherBase(Teacher):
         self.gmm = fit_best_gmm(
             data, self.potential_ks, em_rng, self.gmm_fitness_func, self.nb_em_init
         )
+        means, covs = self._in_task_units()
         self.bk["weights"].append(self.gmm.weights.copy())
-        self.bk["means"].append(self.gmm.means.copy())
-        self.bk["covariances"].append(self.gmm.covariances.copy())
+        self.bk["means"].append(means)
+        self.bk["covariances"].append(covs)
         self.bk["episodes"].append(self.nb_episodes + 1)
+
+    def _in_task_units(self) -> tuple[np.ndarray, np.ndarray]:
+        """The mixture over [task (all d dims, task units), extra columns] (TeachMyAgent's layout)."""
+        idx = np.flatnonzero(self.active)
+        k, n_extra = self.gmm.k, self.gmm.means.shape[1] - self.d_act
+        full = np.concatenate(
+            [idx, self.dim + np.arange(n_extra)]
+        )  # fitted column -> output column
+        scale = np.concatenate([self.span[idx], np.ones(n_extra)])
+        means = np.zeros((k, self.dim + n_extra))
+        means[:, : self.dim] = self.mins
+        means[:, full] = self.gmm.means * scale
+        means[:, idx] += self.mins[idx]
+        covs = np.zeros((k, self.dim + n_extra, self.dim + n_extra))
+        covs[np.ix_(np.arange(k), full, full)] = self.gmm.covariances * np.outer(scale, scale)
+        return means, covs
 
     # ------------------------------------------------------------------ plots
     def plot_state(self) -> dict[str, Any] | None:
-        """The mixture in task units (extra columns dropped, degenerate dims fixed)."""
+        """The mixture over the task dimensions, in task units."""
         if self.gmm is None:
             return None
-        idx = np.flatnonzero(self.active)
-        k = self.gmm.k
-        means = np.tile(self.mins, (k, 1))
-        means[:, idx] = self.mins[idx] + self.gmm.means[:, : self.d_act] * self.span[idx]
-        covs = np.zeros((k, self.dim, self.dim))
-        scale = np.outer(self.span[idx], self.span[idx])
-        covs[np.ix_(np.arange(k), idx, idx)] = (
-            self.gmm.covariances[:, : self.d_act, : self.d_act] * scale
-        )
+        means, covs = self._in_task_units()
         return {
             "kind": "gmm",
-            "means": means,
-            "covariances": covs,
+            "means": means[:, : self.dim],
+            "covariances": covs[:, : self.dim, : self.dim],
             "weights": self._component_weights(),
         }
 
