@@ -179,9 +179,12 @@ class RunDir:
         _atomic_write(self.path / "config.json", json.dumps(doc, indent=2))
 
     def read_config(self) -> dict:
+        return self.read_section("config")
+
+    def read_section(self, name: str):
         if not self.exists():
             raise ValueError(f"{str(self.path)!r} is not a run directory (no config.yaml)")
-        return yaml.safe_load(self.config_yaml.read_text())["config"]
+        return yaml.safe_load(self.config_yaml.read_text())[name]
 
     def set_status(self, status: str, **extra) -> None:
         _atomic_write(self.path / "status.json", json.dumps({"status": status, **extra}, indent=2))

@@ -90,6 +90,12 @@ class TrainConfig:
             return int(self.periodical_samples_every)
         return int(min(TEACHMYAGENT_PERIODICAL_SAMPLES, max(1, self.steps // 10)))
 
+    def __post_init__(self):
+        for name in _COUNTS:  # accept 2e6 for 2000000 from Python callers
+            value = getattr(self, name)
+            if isinstance(value, float) and value.is_integer():
+                setattr(self, name, int(value))
+
     @classmethod
     def from_dict(cls, values: dict) -> TrainConfig:
         known = {f.name for f in dataclasses.fields(cls)}
@@ -110,11 +116,19 @@ class TrainResult:
 
 
 # ---------------------------------------------------------------------- validation
-def _positive(name: str, value, allow_zero: bool = False) -> None:
-    ok = value is None or (value >= 0 if allow_zero else value > 0)
-    if not ok:
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be {bound}, got {value}")
+_COUNTS = (
+    "steps", "n_envs", "nb_test_episodes", "torch_threads", "eval_envs", "eval_every",
+    "checkpoint_every", "buffer_size", "reset_student_every", "periodical_samples_every", "seed",
+)  # fmt: skip
+_MAY_BE_ZERO = ("reset_student_every", "periodical_samples_every", "seed")
+
+
+def _check_count(name: str, value) -> None:
+    if value is None and name not in ("steps", "n_envs", "nb_test_episodes", "torch_threads"):
+        return
+    bound = 0 if name in _MAY_BE_ZERO else 1
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < bound:
+        raise ValueError(f"{name} must be an integer >= {bound}, got {value!r}")
 
 
 def validate(config: TrainConfig) -> None:
@@ -131,13 +145,8 @@ def validate(config: TrainConfig) -> None:
             f"expert_knowledge {config.expert_knowledge!r} unknown; valid: {', '.join(EXPERT_KNOWLEDGE)}"
         )
     check_vec_env(config.vec_env, config.start_method)
-    for name in ("steps", "n_envs", "nb_test_episodes", "torch_threads", "eval_envs"):
-        _positive(name, getattr(config, name))
-    for name in ("eval_every", "checkpoint_every", "buffer_size"):
-        _positive(name, getattr(config, name))
-    _positive("reset_student_every", config.reset_student_every, allow_zero=True)
-    _positive("periodical_samples_every", config.periodical_samples_every, allow_zero=True)
-    _positive("seed", config.seed, allow_zero=True)
+    for name in _COUNTS:
+        _check_count(name, getattr(config, name))
     if config.reset_student_every and config.reset_student_every >= config.steps:
         raise ValueError(
             f"reset_student_every ({config.reset_student_every}) must be < steps ({config.steps}), "
@@ -308,7 +317,7 @@ class TrainingCallback(BaseCallback):
         self.next_checkpoint = _next_multiple(start_step, c.effective_checkpoint_every)
         every = c.reset_student_every
         self.next_reset = _next_multiple(start_step, every) if every else None
-        self.last_eval_step = -1
+        self.last_eval_step = self.last_checkpoint_step = -1
         self.episodes = CsvLog(
             session.run.episodes_csv,
             ["step", "worker", "return", "length", "success", "truncated", *self.task_names],
@@ -343,7 +352,7 @@ class TrainingCallback(BaseCallback):
 
     def periodic(self, final: bool = False) -> None:
         step = self.num_timesteps
-        if self.next_reset is not None and step >= self.next_reset:
+        if self.next_reset is not None and step >= self.next_reset and not final:
             students.reinitialise(self.model)
             self.logger.record(
                 "curriculum/student_resets", step // self.s.config.reset_student_every
@@ -352,9 +361,10 @@ class TrainingCallback(BaseCallback):
         if step >= self.next_eval or (final and self.last_eval_step != step):
             self.evaluate()
             self.next_eval = _next_multiple(step, self.s.config.effective_eval_every)
-        if step >= self.next_checkpoint or final:
+        if step >= self.next_checkpoint or (final and self.last_checkpoint_step != step):
             self.log_episodes()
             self.s.save_checkpoint()
+            self.last_checkpoint_step = step
             self.next_checkpoint = _next_multiple(step, self.s.config.effective_checkpoint_every)
 
     def _on_rollout_end(self) -> None:
@@ -469,6 +479,16 @@ def train(config: TrainConfig | dict | None = None, *, resume=None, **overrides)
                 f"cannot change {bad} when resuming; only {sorted(allowed)} may change"
             )
         config = dataclasses.replace(saved, **{k: v for k, v in changed.items() if k in allowed})
+        # Extending a run keeps its evaluation/snapshot schedule (defaults scale with steps).
+        resolved = run.read_section("resolved")
+        config = dataclasses.replace(
+            config,
+            eval_every=config.eval_every or resolved["eval_every"],
+            checkpoint_every=config.checkpoint_every or resolved["checkpoint_every"],
+            periodical_samples_every=config.periodical_samples_every
+            if config.periodical_samples_every is not None
+            else resolved["periodical_samples_every"],
+        )
         resume_from = run.latest_checkpoint()
     else:
         if isinstance(config, TrainConfig):
