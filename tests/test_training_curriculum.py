@@ -164,3 +164,24 @@ def test_crashing_worker_stops_with_its_traceback(kind):
             run_random_steps(venv, 100)
     finally:
         venv.close()
+
+
+@pytest.mark.parametrize("kind", ["dummy", "forkserver"])
+def test_evaluation_spreads_test_tasks_over_workers_and_pairs_results(kind):
+    from acl3d.training.evaluation import evaluate
+
+    tasks = np.array([[k, 0.1 * k - 0.3] for k in range(7)], dtype=np.float32)
+    venv = vec_env(kind, 3)
+    try:
+        result = evaluate(lambda obs: np.zeros((len(obs), 1)), venv, tasks, episodes_per_task=2)
+        again = evaluate(
+            lambda obs: np.zeros((len(obs), 1)), venv, tasks[:2]
+        )  # stale queue ignored
+    finally:
+        venv.close()
+    np.testing.assert_array_equal(result.tasks, np.repeat(tasks, 2, axis=0))
+    lengths = np.array([min(episode_length(t), MAX_STEPS) for t in result.tasks])
+    np.testing.assert_array_equal(result.lengths, lengths)
+    np.testing.assert_allclose(result.returns, result.tasks[:, 1] * lengths, rtol=1e-5)
+    assert result.mastered_pct == 0.0
+    np.testing.assert_array_equal(again.tasks, tasks[:2])

@@ -90,7 +90,11 @@ def evaluate(
             item = current[i]
             if item >= 0:
                 ep = infos[i][INFO_KEY]
-                np.testing.assert_allclose(ep["task"], tasks[order[item]], rtol=1e-6)
+                if not np.allclose(ep["task"], tasks[order[item]], rtol=1e-6):
+                    raise RuntimeError(
+                        f"evaluation worker {i} played {ep['task']} instead of test task "
+                        f"{tasks[order[item]]}: task queue out of sync"
+                    )
                 returns[item], lengths[item] = ep["return"], ep["length"]
                 successes[item] = ep["success"]
                 done_count += 1
