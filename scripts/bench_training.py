@@ -84,21 +84,26 @@ def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
     return venv
 
 
-def measure(kind: str, student: str, n_envs: int, steps: int, warmup: int, teacher: str):
+def measure(kind, student, n_envs, steps, teacher, preset="fast"):
     """(steps/s, share of the wall time spent on the teacher side)."""
     env = build_env(kind, n_envs, teacher, 0, student)
     try:
-        params = students.hyperparameters(student, "fast", n_envs)
+        params = students.hyperparameters(student, preset, n_envs)
         model = students.build(student, params, env, seed=0)
+        # Warm up past one PPO rollout / SAC's learning_starts, so training is in the timing.
+        if student == "ppo":
+            warmup = params["n_steps"] * n_envs
+            steps = max(steps, warmup)
+        else:
+            warmup = params["learning_starts"]
         model.learn(warmup)
         TimedCurriculumVecEnv.teacher_time = 0.0
         start = time.perf_counter()
         before = model.num_timesteps
         model.learn(steps, reset_num_timesteps=False)
         elapsed = time.perf_counter() - start
-        return (
-            model.num_timesteps - before
-        ) / elapsed, TimedCurriculumVecEnv.teacher_time / elapsed
+        steps_per_s = (model.num_timesteps - before) / elapsed
+        return steps_per_s, TimedCurriculumVecEnv.teacher_time / elapsed
     finally:
         env.close()
 
@@ -108,9 +113,12 @@ def main() -> None:
     p.add_argument("--students", nargs="+", default=["ppo", "sac"], choices=students.STUDENTS)
     p.add_argument("--envs", nargs="+", type=int, default=[1, 2], help="numbers of workers")
     p.add_argument("--teacher", default="alp-gmm", help="teacher in the loop (default alp-gmm)")
-    p.add_argument("--ppo-steps", type=int, default=4096, help="timed PPO steps (2 rollouts)")
+    p.add_argument(
+        "--ppo-steps", type=int, default=4096, help="timed PPO steps (at least 1 rollout)"
+    )
     p.add_argument("--sac-steps", type=int, default=1500, help="timed SAC steps")
     p.add_argument("--repeats", type=int, default=1, help="best of N measurements per cell")
+    p.add_argument("--preset", default="fast", choices=students.PRESETS, help="student preset")
     args = p.parse_args()
     torch.set_num_threads(1)
 
@@ -118,13 +126,14 @@ def main() -> None:
     rows = []
     for student in args.students:
         steps = args.ppo_steps if student == "ppo" else args.sac_steps
-        warmup = 2048 if student == "ppo" else 1000  # one rollout / learning_starts
         for n_envs in args.envs:
             best = {k: 0.0 for k in kinds}
             share = 1.0
             for _ in range(args.repeats):
                 for kind in kinds:  # interleaved, so load changes hit all three alike
-                    sps, teacher_share = measure(kind, student, n_envs, steps, warmup, args.teacher)
+                    sps, teacher_share = measure(
+                        kind, student, n_envs, steps, args.teacher, args.preset
+                    )
                     best[kind] = max(best[kind], sps)
                     if kind == "teacher":
                         share = min(share, teacher_share)
@@ -138,7 +147,10 @@ def main() -> None:
             )
 
     print()
-    print(f"training steps/s (SB3 'fast' preset; teacher = {args.teacher}; best of {args.repeats})")
+    print(
+        f"training steps/s (SB3 '{args.preset}' preset; teacher = {args.teacher}; "
+        f"best of {args.repeats})"
+    )
     print(
         "| student | envs | Stump+teacher | Stump, no teacher | Walker2d-v5 "
         "| teacher/no-teacher | teacher-side time | Stump+teacher/Walker2d |"
