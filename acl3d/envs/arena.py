@@ -65,6 +65,11 @@ class Arena:
         self.version = 0
         self.camera = PREFIX + "track"
 
+    @property
+    def hfield_ids(self) -> tuple[int, ...]:
+        """Heightfields rewritten per episode (re-uploaded to a renderer when `version` changes)."""
+        return (self.hfield_id,)
+
     def customise(self, spec: mujoco.MjSpec) -> None:
         """Hook for arenas that add to the track template before compiling (e.g. Parkour)."""
 

@@ -25,7 +25,7 @@ from acl3d.envs.lidar import LIDAR_TYPES
 from acl3d.envs.parkour_task import DEFAULT_LIDARS, ParkourLidar, ParkourTask
 from acl3d.envs.track_env import TrackEnv
 from acl3d.envs.water import PUSH_CLIP, Water
-from acl3d.rendering import TrackRenderer
+from acl3d.task_space import TaskSpace
 from acl3d.terrain.parkour import (
     INPUT_SPACES,
     ParkourGenerator,
@@ -74,6 +74,10 @@ class ParkourArena(Arena):
         self.ceiling_heights = np.full(grid.ncol, CEILING_RANGE[1])
         self.nb_creeper_geoms = 0
         self.terrain: ParkourTerrain | None = None
+
+    @property
+    def hfield_ids(self) -> tuple[int, ...]:
+        return (self.hfield_id, self.ceiling_id)
 
     def customise(self, spec: mujoco.MjSpec) -> None:
         centre_x = (self.grid.x_max + self.grid.x_min) / 2
@@ -240,10 +244,16 @@ class ParkourEnv(TrackEnv):
         self.terrain: ParkourTerrain | None = None
 
     # ------------------------------------------------------------------ construction hooks
+    def _make_task_space(self, task_parameters) -> TaskSpace:
+        return parkour_task_space(self.input_space)
+
+    def _make_generator(self) -> ParkourGenerator:
+        return ParkourGenerator(start_pad_for(self.body.length))
+
+    def _check_buildable(self, task: dict) -> None:
+        check_buildable(task)
+
     def _build_arena(self) -> ParkourArena:
-        # the Parkour task space and generator replace the track ones set by TrackEnv
-        self.task_space = parkour_task_space(self.input_space)
-        self.generator = ParkourGenerator(start_pad_for(self.body.length))
         return ParkourArena(self.body, self.generator, self.movable_creepers)
 
     def _make_task(self) -> ParkourTask:
@@ -266,16 +276,6 @@ class ParkourEnv(TrackEnv):
             self.end_on_death,
         )
 
-    # ------------------------------------------------------------------ tasks
-    def set_task(self, task) -> None:
-        """Set the task used from the next reset on: a dict (partial: defaults fill the rest) or a flat vector."""
-        if isinstance(task, Mapping):
-            vector = self.task_space.to_vector(task)
-        else:
-            vector = self.task_space.validate_vector(task)
-        check_buildable(self.task_space.to_dict(vector))
-        self._task_vector = vector
-
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = super().reset(seed=seed, options=options)
@@ -288,15 +288,6 @@ class ParkourEnv(TrackEnv):
                 self.climbing.after_step(self.data)
             obs = self.task.reset(self.model, self.data)
         return obs, info
-
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        if self._renderer is None:
-            self._renderer = TrackRenderer(self.model, **self._render_args)
-        for hfield in (self.arena.hfield_id, self.arena.ceiling_id):
-            self._renderer.upload_hfield(hfield, self.arena.version)
-        return self._renderer.render(self.data)
 
     # ------------------------------------------------------------------ internals
     def _new_terrain(self) -> None:

@@ -79,8 +79,8 @@ class TrackEnv(gym.Env):
         frame_skip = self.body.frame_skip if frame_skip is None else frame_skip
         if not isinstance(frame_skip, int) or not 1 <= frame_skip <= 20:
             raise ValueError(f"frame_skip={frame_skip!r}; valid: an integer in [1, 20]")
-        self.task_space: TaskSpace = track_task_space(task_parameters or TRACKS[track])
-        self.generator = TrackGenerator(TrackGrid())
+        self.task_space: TaskSpace = self._make_task_space(task_parameters)
+        self.generator = self._make_generator()
         self.frame_skip = frame_skip
         self.arena = self._build_arena()
         self.model, self.bound = self.arena.model, self.arena.bound
@@ -110,6 +110,16 @@ class TrackEnv(gym.Env):
         self._renderer: TrackRenderer | None = None
 
     # ------------------------------------------------------------------ construction hooks
+    def _make_task_space(self, task_parameters) -> TaskSpace:
+        return track_task_space(task_parameters or TRACKS[self.track])
+
+    def _make_generator(self):
+        return TrackGenerator(TrackGrid())
+
+    def _check_buildable(self, task: dict) -> None:
+        """Raise ValueError if the generator cannot build `task` (names the parameter and range)."""
+        check_buildable(task)
+
     def _build_arena(self) -> Arena:
         return Arena(self.body, self.generator.grid)
 
@@ -123,7 +133,7 @@ class TrackEnv(gym.Env):
             vector = self.task_space.to_vector(task)
         else:
             vector = self.task_space.validate_vector(task)
-        check_buildable(self.task_space.to_dict(vector))
+        self._check_buildable(self.task_space.to_dict(vector))
         self._task_vector = vector
 
     def set_environment(self, **params) -> None:
@@ -180,7 +190,8 @@ class TrackEnv(gym.Env):
             return None
         if self._renderer is None:
             self._renderer = TrackRenderer(self.model, **self._render_args)
-        self._renderer.upload_hfield(self.arena.hfield_id, self.arena.version)
+        for hfield in self.arena.hfield_ids:
+            self._renderer.upload_hfield(hfield, self.arena.version)
         return self._renderer.render(self.data)
 
     def close(self):
@@ -196,7 +207,9 @@ class TrackEnv(gym.Env):
 
     def _place_body(self) -> None:
         self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)
-        push = self.np_random.uniform(-INIT_PUSH, INIT_PUSH)
+        push = self.np_random.uniform(-INIT_PUSH, INIT_PUSH)  # drawn for every body: same stream
+        if not self.body.initial_push:  # the original never pushes the fish
+            return
         # the one-off horizontal force of the original, as the velocity change it gives in one step
         self.data.qvel[self.bound.root_dof] = push * CONTROL_DT / self.bound.total_mass
 

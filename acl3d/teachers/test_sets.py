@@ -164,7 +164,8 @@ def save(path, tasks, task_space) -> None:
 
 
 def resolve(test_set, task_space, nb_tasks: int = 100) -> np.ndarray:
-    """None (default rule), "grid", "uniform", a .json/.csv path, or an array -> validated tasks."""
+    """None (default rule), "grid", "uniform", a named set ("walking", "climbing", "swimming"),
+    a .json/.csv path, or an array -> validated tasks."""
     space = TaskSpace.coerce(task_space)
     if test_set is None:
         return default(space, nb_tasks)
@@ -172,6 +173,15 @@ def resolve(test_set, task_space, nb_tasks: int = 100) -> np.ndarray:
         return grid(space, nb_tasks)
     if isinstance(test_set, str) and test_set == "uniform":
         return uniform(space, nb_tasks)
+    if isinstance(test_set, str) and not Path(test_set).suffix:
+        from acl3d.terrain import parkour_test_sets  # named sets (pure numpy, no MuJoCo)
+
+        if parkour_test_sets.ALIASES.get(test_set, test_set) in parkour_test_sets.SEEDS:
+            return parkour_test_sets.build(test_set, space, nb_tasks)
+        raise ValueError(
+            f"test set {test_set!r}: not a file (.json/.csv), 'grid', 'uniform' or a named set "
+            f"({', '.join(parkour_test_sets.SEEDS)})"
+        )
     if isinstance(test_set, (str, Path)):
         return load(test_set, space)
     return validate(test_set, space)
