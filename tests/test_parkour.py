@@ -8,9 +8,9 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d  # noqa: F401  (registers the environments)
-from acl3d.terrain import parkour_test_sets
 from acl3d.envs.parkour_task import CREEPER_FLAG, SURVIVAL_STEPS, WATER_FLAG
 from acl3d.envs.water import Water
+from acl3d.terrain import parkour_test_sets
 from acl3d.terrain.parkour import (
     CPPN_LAYERS,
     ParkourGenerator,
