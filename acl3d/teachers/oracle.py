@@ -55,7 +55,7 @@ class Oracle(Teacher):
         self.rewards: list[float] = []
 
     def _sample(self) -> np.ndarray:
-        return self.rng.uniform(self.window_low, self.window_low + self.width)
+        return self.clip(self.rng.uniform(self.window_low, self.window_low + self.width))
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
         self.rewards.append(reward)
