@@ -147,43 +147,40 @@ def render_frame(
     frame: dict[str, Any], low, high, labels=("task[0]", "task[1]"), title: str = ""
 ) -> np.ndarray:
     """One frame as an (H, W, 3) uint8 image."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
     x_lim = (low[0], high[0] if high[0] > low[0] else low[0] + 1.0)
     y_lim = (low[1], high[1] if high[1] > low[1] else low[1] + 1.0) if len(low) >= 2 else (0.0, 1.0)
-    fig, ax = plt.subplots(figsize=(5.6, 4.8), dpi=80)
-    try:
-        bg = frame.get("background")
-        if bg is not None:
-            ax.imshow(
-                np.asarray(bg).T,
-                origin="lower",
-                extent=(*x_lim, *y_lim),
-                cmap="Greys",
-                vmin=0,
-                vmax=100,
-                alpha=0.3,
-                aspect="auto",
-            )
-        suffix = _draw_state(fig, ax, frame.get("state"))
-        tasks = frame.get("tasks")
-        if tasks is not None and len(tasks):
-            x, y = _xy(tasks)
-            values = np.asarray(frame.get("values", np.zeros(len(tasks))))
-            ax.scatter(x, y, c=values, cmap="autumn_r", s=6, edgecolors="none", zorder=3)
-        ax.set_xlim(*x_lim)
-        ax.set_ylim(*y_lim)
-        ax.set_xlabel(labels[0])
-        ax.set_ylabel(labels[1] if len(labels) > 1 else "")
-        ax.set_title(f"{title}Episode {frame['episode']}{suffix}")
-        fig.canvas.draw()
-        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=(5.6, 4.8), dpi=80)  # no pyplot: leaves the user's backend alone
+    canvas = FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    bg = frame.get("background")
+    if bg is not None:
+        ax.imshow(
+            np.asarray(bg).T,
+            origin="lower",
+            extent=(*x_lim, *y_lim),
+            cmap="Greys",
+            vmin=0,
+            vmax=100,
+            alpha=0.3,
+            aspect="auto",
+        )
+    suffix = _draw_state(fig, ax, frame.get("state"))
+    tasks = frame.get("tasks")
+    if tasks is not None and len(tasks):
+        x, y = _xy(tasks)
+        values = np.asarray(frame.get("values", np.zeros(len(tasks))))
+        ax.scatter(x, y, c=values, cmap="autumn_r", s=6, edgecolors="none", zorder=3)
+    ax.set_xlim(*x_lim)
+    ax.set_ylim(*y_lim)
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1] if len(labels) > 1 else "")
+    ax.set_title(f"{title}Episode {frame['episode']}{suffix}")
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 def write_gif(
