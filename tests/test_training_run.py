@@ -163,6 +163,7 @@ def test_sac_with_self_paced_teacher_gets_values_and_steps(tmp_path):
             eval_every=600,
             teacher_params={"update_frequency": 200, "update_offset": 0},
             student_params={"learning_starts": 100},
+            reset_student_every=300,
             progress_bar=False,
             verbose=0,
         )
@@ -171,6 +172,8 @@ def test_sac_with_self_paced_teacher_gets_values_and_steps(tmp_path):
     dump = load_state(RunDir(result.run_dir).teacher_prefix)
     assert len(dump["train_returns"]) > 0
     assert len(dump["teacher_bk"]["steps"]) >= 2  # SPDL updated its distribution
+    events = b"".join(p.read_bytes() for p in RunDir(result.run_dir).tb.rglob("events.out*"))
+    assert b"curriculum/student_resets" in events
 
 
 class ExplodingReset(gym.Wrapper):
@@ -270,3 +273,4 @@ def test_config_file_holds_options_and_cli_overrides_it(tmp_path):
     config = TrainConfig.from_dict({"steps": 2_000_000})
     assert config.effective_eval_every == 400_000  # TeachMyAgent's 500k, scaled to 5 evals
     assert TrainConfig.from_dict({"steps": 20_000_000}).effective_eval_every == 500_000
+    assert TrainConfig.from_dict({"steps": 10_000}).effective_eval_every == 50_000  # final only

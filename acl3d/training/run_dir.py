@@ -163,12 +163,15 @@ class RunDir:
         return self.config_yaml.exists()
 
     # ------------------------------------------------------------------ config and status
-    def create(self, config: dict, **sections) -> None:
+    def check_new(self) -> None:
         if self.exists():
             raise ValueError(
                 f"run directory {str(self.path)!r} already holds a run; use --resume to continue "
                 "it or choose another --out"
             )
+
+    def create(self, config: dict, **sections) -> None:
+        self.check_new()
         self.path.mkdir(parents=True, exist_ok=True)
         self.write_config(config, **sections)
 

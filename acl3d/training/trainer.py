@@ -32,6 +32,7 @@ from acl3d.training.workers import check_vec_env, make_env, make_vec_env
 
 EXPERT_KNOWLEDGE: tuple[str, ...] = ("no", "low", "high")
 TEACHMYAGENT_EVAL_EVERY = 500_000
+MIN_DEFAULT_EVAL_EVERY = 50_000
 TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
 
 
@@ -75,10 +76,14 @@ class TrainConfig:
     # ------------------------------------------------------------------ derived values
     @property
     def effective_eval_every(self) -> int:
-        """TeachMyAgent's 500k, scaled down to 5 evaluations for runs shorter than 2.5M steps."""
+        """TeachMyAgent's 500k, scaled down to 5 evaluations for runs shorter than 2.5M steps.
+
+        Never below 50k by default: one pass over the 100-task test set can cost up to 200k env
+        steps, so runs shorter than 50k steps get only the final evaluation.
+        """
         if self.eval_every is not None:
             return int(self.eval_every)
-        return int(min(TEACHMYAGENT_EVAL_EVERY, max(1, self.steps // 5)))
+        return int(min(TEACHMYAGENT_EVAL_EVERY, max(MIN_DEFAULT_EVAL_EVERY, self.steps // 5)))
 
     @property
     def effective_checkpoint_every(self) -> int:
@@ -498,6 +503,7 @@ def train(config: TrainConfig | dict | None = None, *, resume=None, **overrides)
         if not config.out:
             raise ValueError("out (the run directory) is required")
         run = RunDir(config.out)
+        run.check_new()
         resume_from = None
     validate(config)
     torch.set_num_threads(config.torch_threads)
