@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from acl3d.teachers.alp_gmm import GMMTeacherBase
+from acl3d.teachers.gmm import GMMTeacherBase
 
 
 class CovarGMM(GMMTeacherBase):

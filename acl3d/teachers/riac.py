@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from acl3d.teachers.alp_gmm import pick_proportional
 from acl3d.teachers.base import Teacher
+from acl3d.teachers.gmm import pick_proportional
 
 P_MUTATE, P_UNIFORM = (
     0.1,
