@@ -10,13 +10,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from acl3d.training.run_dir import RunDir, read_csv  # noqa: E402
+from acl3d.training.run_dir import RunDir, read_csv
 
 MASTERED_THRESHOLD = 230.0
 
@@ -25,7 +23,8 @@ def plot_mastered(run: RunDir, out: Path) -> Path | None:
     cols = read_csv(run.evals_csv) if run.evals_csv.exists() else {}
     if not cols.get("step"):
         return None
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     ax.plot(cols["step"], cols["mastered_pct"], "o-", color="tab:blue", label="% mastered")
     ax.set_xlabel("training steps")
     ax.set_ylabel("% mastered test tasks (return > 230)", color="tab:blue")
@@ -43,7 +42,8 @@ def plot_returns(run: RunDir, out: Path) -> Path | None:
     if not cols.get("step"):
         return None
     steps, returns = np.asarray(cols["step"]), np.asarray(cols["return"])
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     ax.plot(steps, returns, ".", alpha=0.25, markersize=3, label="episode")
     window = max(1, min(100, len(returns) // 10))
     smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
@@ -64,7 +64,8 @@ def plot_curriculum(run: RunDir, out: Path) -> Path | None:
     fixed = {"step", "worker", "return", "length", "success", "truncated"}
     names = [k for k in cols if k not in fixed]
     steps = np.asarray(cols["step"])
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig = Figure(figsize=(6, 5))
+    ax = fig.subplots()
     if len(names) >= 2:
         x, y = np.asarray(cols[names[0]]), np.asarray(cols[names[1]])
         ax.set_ylabel(names[1])
@@ -74,7 +75,7 @@ def plot_curriculum(run: RunDir, out: Path) -> Path | None:
     bounds = _teacher_bounds(run)
     if bounds is not None and len(names) >= 2:
         (x0, y0), (x1, y1) = bounds[0][:2], bounds[1][:2]
-        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", color="grey"))
+        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", color="grey"))
         ax.set_xlim(x0 - 0.05 * (x1 - x0 or 1), x1 + 0.05 * (x1 - x0 or 1))
         ax.set_ylim(y0 - 0.05 * (y1 - y0 or 1), y1 + 0.05 * (y1 - y0 or 1))
     sc = ax.scatter(x, y, c=steps, cmap="viridis", s=8, alpha=0.7)
@@ -99,8 +100,7 @@ def _teacher_bounds(run: RunDir):
 def _save(fig, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    fig.savefig(path, dpi=110)  # a bare Figure: pyplot's global state is left alone
     return path
 
 
