@@ -162,7 +162,10 @@ def load_config_file(path) -> dict:
     if not path.exists():
         raise ValueError(f"--config file {str(path)!r} does not exist")
     if path.suffix.lower() == ".toml":
-        import tomllib
+        try:
+            import tomllib
+        except ImportError:  # Python 3.10
+            raise ValueError("TOML config files need Python >= 3.11; use YAML instead") from None
 
         data = tomllib.loads(path.read_text())
     else:
