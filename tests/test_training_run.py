@@ -128,6 +128,7 @@ def test_evaluate_cli_on_run_dir(trained_run, tmp_path, capsys):
     assert rc == 0
     assert "% mastered" in capsys.readouterr().out
     rows = read_csv(out)
+    assert {"stump_height", "obstacle_spacing"} <= set(rows)
     assert len(rows["return"]) == 4 and all(length <= 60 for length in rows["length"])
 
 

@@ -65,15 +65,16 @@ def run(args) -> int:
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     model, env_name, body, env_kwargs, run_tasks = resolve_target(args.target, args.env, args.body)
+    probe = make_env(env_name, body, env_kwargs)  # also checks the env and body names
+    try:
+        space = probe.unwrapped.task_space
+    finally:
+        probe.close()
     if args.test_set is None and run_tasks is not None:
         tasks = run_tasks
     else:
-        probe = make_env(env_name, body, env_kwargs)
-        try:
-            space = probe.unwrapped.task_space
-        finally:
-            probe.close()
         tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes)
+    names = space.flat_names() if space.dim == tasks.shape[1] else range(tasks.shape[1])
     result = evaluate_saved_model(
         model,
         env_name,
@@ -94,7 +95,7 @@ def run(args) -> int:
                     "return",
                     "length",
                     "success",
-                    *[f"task_{i}" for i in range(result.tasks.shape[1])],
+                    *names,
                 ]
             )
             for i, (task, ret, length, ok) in enumerate(
