@@ -175,6 +175,7 @@ def test_sac_with_self_paced_teacher_gets_values_and_steps(tmp_path):
     assert len(dump["teacher_bk"]["steps"]) >= 2  # SPDL updated its distribution
     events = b"".join(p.read_bytes() for p in RunDir(result.run_dir).tb.rglob("events.out*"))
     assert b"curriculum/student_resets" in events
+    assert b"curriculum/teacher/kl" in events  # teacher-specific scalars reach TensorBoard
 
 
 class ExplodingReset(gym.Wrapper):

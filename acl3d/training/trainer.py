@@ -326,6 +326,7 @@ class TrainingCallback(BaseCallback):
         every = c.reset_student_every
         self.next_reset = _next_multiple(start_step, every) if every else None
         self.last_eval_step = self.last_checkpoint_step = -1
+        self.bk_seen: dict[str, int] = {}
         self.episodes = CsvLog(
             session.run.episodes_csv,
             ["step", "worker", "return", "length", "success", "truncated", *self.task_names],
@@ -402,8 +403,21 @@ class TrainingCallback(BaseCallback):
         )
         self.logger.record("curriculum/success_rate", float(np.mean([e.success for e in finished])))
         self.logger.record("curriculum/episodes", self.s.curriculum_env.episodes_done)
-        for key, value in _teacher_scalars(self.s.controller).items():
+        for key, value in self.teacher_scalars().items():
             self.logger.record(f"curriculum/teacher/{key}", value)
+
+    def teacher_scalars(self) -> dict[str, float]:
+        """Mean of each scalar book-keeping series of the teacher (ALPs, losses, KL, ...) over
+        the entries added since the last log, for TensorBoard."""
+        teacher = getattr(self.s.controller, "teacher", None)
+        out = {}
+        for key, values in (getattr(teacher, "bk", None) or {}).items():
+            start = self.bk_seen.get(key, 0)
+            new = [v for v in values[start:] if _is_number(v)]
+            self.bk_seen[key] = len(values)
+            if new:
+                out[key] = float(np.mean(new))
+        return out
 
     def evaluate(self) -> None:
         step = self.num_timesteps
@@ -444,18 +458,8 @@ def _next_multiple(step: int, every: int) -> int:
     return (step // every + 1) * every
 
 
-def _teacher_scalars(controller) -> dict[str, float]:
-    """Latest scalar book-keeping values of the teacher (losses, KL, ...), for TensorBoard."""
-    teacher = getattr(controller, "teacher", None)
-    out = {}
-    for key, values in (getattr(teacher, "bk", None) or {}).items():
-        if (
-            values
-            and isinstance(values[-1], (int, float, np.integer, np.floating))
-            and not isinstance(values[-1], bool)
-        ):
-            out[key] = float(values[-1])
-    return out
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
 # ---------------------------------------------------------------------- public API
