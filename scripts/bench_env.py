@@ -12,11 +12,13 @@ from __future__ import annotations
 import argparse
 import time
 
+import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
+
+# isort: split
 import gymnasium as gym
 import mujoco
 import numpy as np
 
-import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
 from acl3d.bodies import BODIES
 
 ORIGINAL_BOX2D_STEPS = 8900  # 2D Box2D Stump Tracks, classic biped, h=1 sp=3, same machine class
