@@ -183,7 +183,9 @@ class TrackGenerator:
         y = _convex_upper_envelope(polygon, self.x[cols])
         np.fmax(heights[cols], y, out=heights[cols])
 
-    def profile(self, task: Mapping[str, object], rng: np.random.Generator, start_pad: int = START_PAD) -> np.ndarray:
+    def profile(
+        self, task: Mapping[str, object], rng: np.random.Generator, start_pad: int = START_PAD
+    ) -> np.ndarray:
         """Heights (metres above the flat ground) at `self.x` for one episode.
 
         `task` holds the parameters to use; obstacle kinds present among stump_height, stump_seq
