@@ -5,12 +5,16 @@ in-run reference, so the ratios are comparable across machines. Run on an idle m
 
     python scripts/bench_env.py                 # classic biped on Stump Tracks (+ Walker2d-v5)
     python scripts/bench_env.py --bodies all    # every body, planar and 3D where offered
+    python scripts/bench_env.py --parkour       # + Parkour: biped, climber, fish, water cost
 """
 
 from __future__ import annotations
 
 import argparse
+import runpy
+import sys
 import time
+from pathlib import Path
 
 import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
 
@@ -128,6 +132,7 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=20000)
     p.add_argument("--bodies", default="classic_bipedal", help="comma-separated names, or 'all'")
     p.add_argument("--no-render", action="store_true")
+    p.add_argument("--parkour", action="store_true", help="also run scripts/bench_parkour.py")
     args = p.parse_args()
     bodies = list(BODIES) if args.bodies == "all" else args.bodies.split(",")
 
@@ -158,6 +163,10 @@ def main() -> None:
     if not args.no_render:
         print(f"render 640x480, default (fast) settings: {render_fps():.0f} fps (step + render)")
         print(f"render 640x480, quality='high': {render_fps(60, 'high'):.0f} fps")
+    if args.parkour:
+        print("\nParkour:")
+        sys.argv = [str(Path(__file__).with_name("bench_parkour.py"))]
+        runpy.run_path(sys.argv[0], run_name="__main__")
 
 
 if __name__ == "__main__":
