@@ -184,3 +184,29 @@ def test_random_actions_stay_stable():
         if terminated:
             env.reset()
     assert np.all(env.data.warning.number == 0)
+
+
+def test_lidar_matches_mujoco_ray_casting_and_ignores_the_body():
+    from acl3d.envs.lidar import Lidar
+
+    env = make().unwrapped
+    rng = np.random.default_rng(0)
+    reference = Lidar("down")  # mj_multiRay on the compiled heightfield, terrain group only
+    for episode in range(5):
+        env.reset(
+            seed=episode,
+            options={
+                "task": {"stump_height": rng.uniform(0, 5), "obstacle_spacing": rng.uniform(0, 4)}
+            },
+        )
+        for _ in range(100):
+            origin = np.array([rng.uniform(-4, 100), rng.uniform(-1, 1), rng.uniform(0.05, 6)])
+            if origin[2] <= env.arena.ground_height(origin[0]):
+                continue
+            expected = reference.read(env.model, env.data, origin).copy()
+            assert np.allclose(
+                env.task.lidar.read(env.model, env.data, origin), expected, atol=1e-5
+            )
+    # the body is never seen: rays from inside the hull still reach the ground below
+    obs, _ = env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})
+    assert obs[-10] == pytest.approx((env.data.xpos[env.bound.root_id][2]) / (160 / 30), abs=1e-3)

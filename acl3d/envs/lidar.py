@@ -51,3 +51,68 @@ class Lidar:
         fraction[miss] = 1.0
         self.geom_ids[miss] = -1
         return fraction
+
+
+class ProfileLidar(Lidar):
+    """The same rays, cast analytically on a track's height profile (4x fewer microseconds).
+
+    A track is a profile extruded across it, so a sagittal ray meets the terrain where the
+    heightfield's centre line does: the piecewise-linear chain through the columns. From the
+    origin, the first terrain point above ray i is the first column whose elevation slope
+    (h - z0) / (x - x0) reaches the ray's slope; with a running maximum of those slopes, one
+    `searchsorted` finds it for all rays, and the crossing is solved on the segment before it.
+    `mj_multiRay` instead visits every heightfield column. Forward/downward rays only ("down").
+    """
+
+    def __init__(
+        self, arena, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE
+    ):
+        super().__init__(kind, nb_rays, ray_range)
+        sin, cos = self._vec[0::3], -self._vec[2::3]
+        if np.any(sin < -1e-12):
+            raise ValueError(
+                f"ProfileLidar casts forward/downward rays only; lidar type {kind!r} looks back"
+            )
+        self.arena = arena
+        self._x_min, self._cell, self._ncol = arena.grid.x_min, arena.grid.cell, arena.grid.ncol
+        self._x = arena.grid.x
+        vertical = sin <= 1e-12
+        self._vertical = np.flatnonzero(vertical)
+        self._slanted = np.flatnonzero(~vertical)
+        sin_s = sin[self._slanted]
+        self._slope = -cos[self._slanted] / sin_s  # dz/dx of each slanted ray, increasing
+        self._inv_sin = 1.0 / sin_s
+        self._reach = int(np.ceil(ray_range * sin.max() / self._cell)) + 2
+        self._terrain_geom = arena.model.geom("terrain").id
+
+    def read(self, model, data, origin) -> np.ndarray:
+        x0, z0 = float(origin[0]), float(origin[2])
+        heights = self.arena.heights
+        j = int((x0 - self._x_min) / self._cell)
+        j = min(max(j, 0), self._ncol - 2)
+        frac = (x0 - self._x[j]) / self._cell
+        h0 = heights[j] + frac * (heights[j + 1] - heights[j])  # terrain right under the origin
+        out = np.ones(self.nb_rays)
+        if z0 <= h0:  # origin inside the terrain: every ray hits at once
+            out[:] = 0.0
+            self.geom_ids[:] = self._terrain_geom
+            return out
+        stop = min(j + 1 + self._reach, self._ncol)
+        xs = np.concatenate(((x0,), self._x[j + 1 : stop]))
+        hs = np.concatenate(((h0,), heights[j + 1 : stop]))
+        rise = np.maximum.accumulate((hs[1:] - z0) / (xs[1:] - x0))
+        k = np.searchsorted(rise, self._slope)  # segment (k, k+1) holds the crossing
+        hit = k < len(rise)
+        dist = np.full(self.nb_rays, np.inf)
+        if hit.any():
+            k = k[hit]
+            xa, ha = xs[k], hs[k]
+            m = (hs[k + 1] - ha) / (xs[k + 1] - xa)
+            s = self._slope[hit]
+            x_hit = (z0 - ha + m * xa - s * x0) / (m - s)
+            dist[self._slanted[hit]] = (x_hit - x0) * self._inv_sin[hit]
+        dist[self._vertical] = z0 - h0
+        within = dist <= self.range
+        out[within] = dist[within] * self._inv_range
+        self.geom_ids[:] = np.where(within, self._terrain_geom, -1)
+        return out

@@ -16,7 +16,7 @@ import numpy as np
 
 from acl3d.bodies import Body, make_body
 from acl3d.envs.arena import Arena
-from acl3d.envs.lidar import Lidar
+from acl3d.envs.lidar import ProfileLidar
 from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
 from acl3d.rendering import TrackRenderer
 from acl3d.task_space import TaskSpace
@@ -124,7 +124,7 @@ class TrackEnv(gym.Env):
         return Arena(self.body, self.generator.grid)
 
     def _make_task(self) -> TrackTask:
-        return TrackTask(self.bound, Lidar("down"))
+        return TrackTask(self.bound, ProfileLidar(self.arena, "down"))
 
     # ------------------------------------------------------------------ tasks
     def set_task(self, task) -> None:
