@@ -234,32 +234,27 @@ def test_riac_splits_only_non_degenerate_dims_and_children_get_best_split_alps()
 
 def test_adr_expands_on_success_and_contracts_on_failure():
     space = TaskSpace.from_bounds({"a": [0.0, 1.0], "b": [0.0, 1.0]})
-    teacher = make(
-        "adr",
-        space,
-        seed=0,
-        step_size=0.1,
-        queue_len=3,
-        min_reward_thr=0.2,
-        max_reward_thr=0.8,
-        initial_dist={"mean": [0.5, 0.5]},
-    )
+
+    def centred_adr():
+        return make(
+            "adr",
+            space,
+            seed=0,
+            step_size=0.1,
+            queue_len=3,
+            min_reward_thr=0.2,
+            max_reward_thr=0.8,
+            initial_dist={"mean": [0.5, 0.5]},
+        )
+
+    teacher = centred_adr()
     for _ in range(400):
         teacher.episodic_update(teacher.sample_task(), 1.0)
     np.testing.assert_allclose(teacher.cur_low, [0.0, 0.0])
     np.testing.assert_allclose(teacher.cur_high, [1.0, 1.0])
     assert teacher.plot_state()["kind"] == "box"
 
-    teacher = make(
-        "adr",
-        space,
-        seed=0,
-        step_size=0.1,
-        queue_len=3,
-        min_reward_thr=0.2,
-        max_reward_thr=0.8,
-        initial_dist={"mean": [0.5, 0.5]},
-    )
+    teacher = centred_adr()
     for _ in range(60):
         teacher.episodic_update(teacher.sample_task(), 1.0)
     width = teacher.cur_high - teacher.cur_low

@@ -27,9 +27,10 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from acl3d.envs.track_task import SUCCESS_RETURN as SUCCESS_THRESHOLD
+
 INFO_KEY = "curriculum"
 ERROR_KEY = "acl3d_worker_error"
-SUCCESS_THRESHOLD = 230.0
 
 
 class WorkerError(RuntimeError):

@@ -14,9 +14,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
+from acl3d.envs.track_task import SUCCESS_RETURN as MASTERED_THRESHOLD
 from acl3d.training.run_dir import RunDir, read_csv
-
-MASTERED_THRESHOLD = 230.0
 
 
 def plot_mastered(run: RunDir, out: Path) -> Path | None:

@@ -55,27 +55,8 @@ def _sac(preset: str, n_envs: int) -> dict[str, Any]:
 
 
 def _ppo(preset: str, n_envs: int) -> dict[str, Any]:
-    if preset == "benchmark":
-        # OpenAI Baselines ppo2 as run by TeachMyAgent: 20k steps per update (split over the
-        # workers), minibatches of 1000, 5 epochs.
-        return {
-            "policy_kwargs": {"net_arch": [400, 300], "activation_fn": "tanh"},
-            "n_steps": max(1, 20_000 // n_envs),
-            "batch_size": 1000,
-            "n_epochs": 5,
-            "learning_rate": 3e-4,
-            "clip_range": 0.2,
-            "vf_coef": 0.5,
-            "ent_coef": 0.0,
-            "gamma": 0.99,
-            "gae_lambda": 0.95,
-            "max_grad_norm": 0.5,
-        }
-    return {
-        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"},
-        "n_steps": max(1, 2048 // n_envs),
-        "batch_size": 256,
-        "n_epochs": 10,
+    # Both presets share OpenAI Baselines ppo2's loss settings as run by TeachMyAgent.
+    common = {
         "learning_rate": 3e-4,
         "clip_range": 0.2,
         "vf_coef": 0.5,
@@ -83,6 +64,22 @@ def _ppo(preset: str, n_envs: int) -> dict[str, Any]:
         "gamma": 0.99,
         "gae_lambda": 0.95,
         "max_grad_norm": 0.5,
+    }
+    if preset == "benchmark":
+        # TeachMyAgent: 20k steps per update (split over the workers), minibatches of 1000, 5 epochs.
+        return {
+            **common,
+            "policy_kwargs": {"net_arch": [400, 300], "activation_fn": "tanh"},
+            "n_steps": max(1, 20_000 // n_envs),
+            "batch_size": 1000,
+            "n_epochs": 5,
+        }
+    return {
+        **common,
+        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"},
+        "n_steps": max(1, 2048 // n_envs),
+        "batch_size": 256,
+        "n_epochs": 10,
     }
 
 
