@@ -1,0 +1,161 @@
+"""Strict argument checks shared by every layer: one place that says what a number, a count, a flag,
+a seed or a numeric array is, so that every rejection reads the same.
+
+Strict means no silent coercion: a real number is an int, a float or a numpy real scalar (never a
+bool, a string or a complex); a flag is a bool (or numpy bool); a count is an int (an integral
+float such as 2e6 only where the caller allows it). Non-finite values and ints too large for a
+float (`10**400`) are rejected. Every failure is a `ValueError` of the form
+`"{name}={value!r}; valid: {what is allowed}"`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+_REAL_TYPES = (int, float, np.integer, np.floating)
+_MAX_SHOWN = 200  # characters of a rejected value shown in a message
+
+
+def fail(name: str, value, valid: str) -> ValueError:
+    """The one error format: the parameter, its value (shortened) and what is allowed."""
+    shown = repr(value)
+    if len(shown) > _MAX_SHOWN:
+        shown = shown[: _MAX_SHOWN - 3] + "..."
+    return ValueError(f"{name}={shown}; valid: {valid}")
+
+
+def _interval(low: float, high: float) -> str:
+    if low == -math.inf and high == math.inf:
+        return ""
+    if high == math.inf:
+        return f" >= {low:g}"
+    if low == -math.inf:
+        return f" <= {high:g}"
+    return f" in [{low:g}, {high:g}]"
+
+
+def is_real(value) -> bool:
+    """True for int, float and numpy real scalars; False for bools, strings, complex, arrays."""
+    return isinstance(value, _REAL_TYPES) and not isinstance(value, (bool, np.bool_))
+
+
+def real(
+    name: str,
+    value,
+    low: float = -math.inf,
+    high: float = math.inf,
+    *,
+    exclusive_low: bool = False,
+) -> float:
+    """A finite real number in [low, high] (or (low, high] with `exclusive_low`), as a float."""
+    valid = (
+        f"a finite number > {low:g}" + (f" and <= {high:g}" if high < math.inf else "")
+        if exclusive_low
+        else f"a finite number{_interval(low, high)}"
+    )
+    if not is_real(value):
+        raise fail(name, value, valid)
+    try:
+        v = float(value)
+    except OverflowError:
+        raise fail(name, value, valid) from None
+    if not math.isfinite(v) or v > high or v < low or (exclusive_low and v == low):
+        raise fail(name, value, valid)
+    return v
+
+
+def positive(name: str, value, *, allow_zero: bool = False) -> float:
+    """A finite number > 0 (>= 0 with `allow_zero`)."""
+    if allow_zero:
+        return real(name, value, 0.0)
+    return real(name, value, 0.0, exclusive_low=True)
+
+
+def integer(
+    name: str,
+    value,
+    low: float = -math.inf,
+    high: float = math.inf,
+    *,
+    allow_float: bool = False,
+) -> int:
+    """An int in [low, high]; with `allow_float`, an integral float (2e6) is accepted too."""
+    valid = f"an integer{_interval(low, high)}"
+    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
+        v = int(value)
+    elif allow_float and isinstance(value, (float, np.floating)) and float(value).is_integer():
+        v = int(value)
+    else:
+        raise fail(name, value, valid)
+    if not low <= v <= high:
+        raise fail(name, value, valid)
+    return v
+
+
+def count(name: str, value, *, minimum: int = 1, allow_float: bool = False) -> int:
+    """A number of things: an int >= `minimum` (1 unless told)."""
+    return integer(name, value, minimum, allow_float=allow_float)
+
+
+def flag(name: str, value) -> bool:
+    """A bool or numpy bool (never the string "False", never 0/1)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise fail(name, value, "True or False")
+    return bool(value)
+
+
+def optional_flag(name: str, value) -> bool | None:
+    """None (a default chosen elsewhere) or a flag."""
+    return None if value is None else flag(name, value)
+
+
+def choice(name: str, value, valid: Sequence):
+    """One of `valid` (compared by equality; strings stay strings)."""
+    if isinstance(value, (list, dict, set, np.ndarray)) or value not in tuple(valid):
+        raise fail(name, value, f"one of {list(valid)}")
+    return value
+
+
+def seed(value, name: str = "seed") -> int | None:
+    """None or a non-negative int (a bool is not a seed)."""
+    if value is None:
+        return None
+    return integer(name, value, 0)
+
+
+def _check_elements(value) -> bool:
+    """Recursively: only real numbers in nested lists/tuples (no bools, strings, None, complex)."""
+    if isinstance(value, (list, tuple)):
+        return all(_check_elements(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    return is_real(value)
+
+
+def real_array(name: str, value, *, shape: tuple[int, ...] | None = None, size: int | None = None):
+    """A finite float64 array from a real scalar, a (nested) list of reals or a real numpy array.
+
+    `shape` asks for an exact shape, `size` for a number of elements (the array is then
+    flattened). Bools, strings, complex numbers and objects are rejected, not converted.
+    """
+    what = "finite real numbers"
+    if shape is not None:
+        what += f" of shape {shape}"
+    elif size is not None:
+        what += f" ({size} value{'s' if size != 1 else ''})"
+    if not _check_elements(value):
+        raise fail(name, value, what)
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (OverflowError, ValueError):  # ints beyond float range, ragged lists
+        raise fail(name, value, what) from None
+    if size is not None:
+        arr = arr.reshape(-1)
+    if (shape is not None and arr.shape != tuple(shape)) or (size is not None and arr.size != size):
+        raise fail(name, value, what)
+    if not np.all(np.isfinite(arr)):
+        raise fail(name, value, what)
+    return arr
