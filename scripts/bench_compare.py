@@ -1,0 +1,81 @@
+"""Single-env speed of this checkout against another one (e.g. before a refactor), in one run.
+
+    git worktree add /tmp/acl3d-old <commit>
+    python scripts/bench_compare.py /tmp/acl3d-old [--rounds 6] [--steps 20000]
+
+Each round times `env.step` (classic biped, Stump Tracks h=1 sp=3, seeded random actions) and
+`env.reset` with a new task in a fresh subprocess per checkout, alternating old and new so that
+machine drift hits both alike; prints the medians and new/old ratios (> 1: the new one is faster).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PROBE = r"""
+import json, sys, time
+import numpy as np
+import acl3d
+from acl3d.envs import make
+steps = int(sys.argv[1])
+env = make("stump-tracks", body="classic_bipedal")
+env.reset(seed=0, options={"task": {"stump_height": 1.0, "obstacle_spacing": 3.0}})
+rng = np.random.default_rng(0)
+actions = rng.uniform(-1, 1, (steps, env.action_space.shape[0])).astype(np.float32)
+start = time.perf_counter()
+for action in actions:
+    _, _, terminated, truncated, _ = env.step(action)
+    if terminated or truncated:
+        env.reset()
+step_rate = steps / (time.perf_counter() - start)
+start = time.perf_counter()
+for i in range(200):
+    env.reset(options={"task": {"stump_height": (i % 30) / 10, "obstacle_spacing": 3.0}})
+reset_ms = (time.perf_counter() - start) / 200 * 1e3
+print(json.dumps({"file": acl3d.__file__, "steps_per_s": step_rate, "reset_ms": reset_ms}))
+"""
+
+
+def measure(tree: Path, steps: int) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, str(steps)],
+        env=env,
+        cwd=tree,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    result = json.loads(out.strip().splitlines()[-1])
+    if not result["file"].startswith(str(tree)):
+        raise RuntimeError(f"{tree}: imported acl3d from {result['file']}")
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("old", type=Path, help="the other checkout (its root folder)")
+    parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument("--steps", type=int, default=20_000)
+    args = parser.parse_args()
+    runs = {"old": [], "new": []}
+    for _ in range(args.rounds):
+        runs["old"].append(measure(args.old.resolve(), args.steps))
+        runs["new"].append(measure(ROOT, args.steps))
+    for key in ("steps_per_s", "reset_ms"):
+        old = statistics.median(r[key] for r in runs["old"])
+        new = statistics.median(r[key] for r in runs["new"])
+        ratio = new / old if key == "steps_per_s" else old / new
+        print(f"{key:12s} old {old:10.2f}  new {new:10.2f}  new/old speed {ratio:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
