@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acl3d import validation
+
 
 @dataclass(frozen=True)
 class TaskParameter:
@@ -29,11 +31,12 @@ class TaskParameter:
 
 
 def _as_tuple(value, dims: int, what: str) -> tuple[float, ...]:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    """`dims` finite bounds from one number (repeated) or `dims` numbers."""
+    arr = validation.real_array(what, value).reshape(-1)
     if arr.size == 1 and dims > 1:
         arr = np.repeat(arr, dims)
     if arr.size != dims:
-        raise ValueError(f"{what}: expected {dims} value(s), got {arr.size}")
+        raise validation.fail(what, value, f"1 or {dims} finite numbers")
     return tuple(float(v) for v in arr)
 
 
@@ -49,19 +52,20 @@ class TaskSpace:
     _offsets: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
+        if not self.parameters:
+            raise ValueError("a task space needs at least one parameter")
         offsets, start = {}, 0
         for p in self.parameters:
             if p.name in offsets:
                 raise ValueError(f"duplicate task parameter name {p.name!r}")
-            lo, hi = np.asarray(p.low), np.asarray(p.high)
-            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-                raise ValueError(
-                    f"task parameter {p.name!r}: bounds must be finite, got {p.low}..{p.high}"
+            lo = validation.real_array(f"{p.name} lower bound", p.low)
+            hi = validation.real_array(f"{p.name} upper bound", p.high)
+            if lo.shape != hi.shape or lo.ndim != 1 or lo.size == 0:
+                raise validation.fail(
+                    f"bounds of {p.name!r}", (p.low, p.high), "as many lower as upper bounds"
                 )
             if np.any(lo > hi):
-                raise ValueError(
-                    f"task parameter {p.name!r}: min > max in bounds {p.low}..{p.high}"
-                )
+                raise validation.fail(f"bounds of {p.name!r}", (p.low, p.high), "min <= max")
             offsets[p.name] = (start, start + p.dims)
             start += p.dims
         object.__setattr__(self, "_offsets", offsets)
@@ -70,29 +74,31 @@ class TaskSpace:
     @classmethod
     def from_bounds(cls, bounds: Mapping[str, Sequence]) -> TaskSpace:
         """Build from TeachMyAgent bounds: `{name: [min, max]}`, `[min, max, n]` or `[[min, max], ...]`."""
+        forms = "[min, max], [min, max, n] or [[min, max], ...] of finite numbers"
+        if not isinstance(bounds, Mapping) or not bounds:
+            raise validation.fail("bounds", bounds, "a non-empty {name: [min, max]} mapping")
         params = []
         for name, b in bounds.items():
-            b = list(b) if not isinstance(b, np.ndarray) else b.tolist()
-            if len(b) > 0 and isinstance(b[0], (list, tuple, np.ndarray)):
-                pairs = np.asarray(b, dtype=np.float64)
+            what = f"bounds[{name!r}]"
+            if not isinstance(name, str) or not name:
+                raise validation.fail("bounds", bounds, "parameter names that are strings")
+            if not isinstance(b, (list, tuple, np.ndarray)):
+                raise validation.fail(what, b, forms)
+            b = b.tolist() if isinstance(b, np.ndarray) else list(b)
+            if b and isinstance(b[0], (list, tuple)):
+                pairs = validation.real_array(what, b)
                 if pairs.ndim != 2 or pairs.shape[1] != 2:
-                    raise ValueError(
-                        f"bounds for {name!r}: expected a list of [min, max] pairs, got {b}"
-                    )
+                    raise validation.fail(what, b, forms)
                 low, high = tuple(pairs[:, 0]), tuple(pairs[:, 1])
             elif len(b) == 2:
-                low, high = (float(b[0]),), (float(b[1]),)
+                low = (validation.real(f"{what} min", b[0]),)
+                high = (validation.real(f"{what} max", b[1]),)
             elif len(b) == 3:
-                n = int(b[2])
-                if n < 1 or n != b[2]:
-                    raise ValueError(
-                        f"bounds for {name!r}: dimension count must be a positive integer, got {b[2]}"
-                    )
-                low, high = (float(b[0]),) * n, (float(b[1]),) * n
+                n = validation.integer(f"{what} dimension count", b[2], 1, allow_float=True)
+                low = (validation.real(f"{what} min", b[0]),) * n
+                high = (validation.real(f"{what} max", b[1]),) * n
             else:
-                raise ValueError(
-                    f"bounds for {name!r}: expected [min, max], [min, max, n] or [[min, max], ...], got {b}"
-                )
+                raise validation.fail(what, b, forms)
             params.append(TaskParameter(name, tuple(map(float, low)), tuple(map(float, high))))
         return cls(tuple(params))
 
@@ -117,7 +123,10 @@ class TaskSpace:
             )
         for p in self.parameters:
             if p.name in bounds:
-                lo, hi = bounds[p.name]
+                pair = bounds[p.name]
+                if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+                    raise validation.fail(f"bounds[{p.name!r}]", pair, "a (min, max) pair")
+                lo, hi = pair
                 p = TaskParameter(
                     p.name,
                     _as_tuple(lo, p.dims, p.name),
@@ -191,11 +200,17 @@ class TaskSpace:
         return out
 
     def to_vector(self, task: Mapping, fill_defaults: bool = True) -> np.ndarray:
-        """{name: value} -> flat float64 vector; missing names take their default (or fail)."""
+        """{name: value} -> flat float64 vector; missing names take their default (or fail).
+
+        Values are real numbers (or sequences/arrays of them): strings, bools and complex
+        numbers are rejected, not converted.
+        """
+        if not isinstance(task, Mapping):
+            raise validation.fail("task", task, f"a mapping of {list(self.names)} to numbers")
         unknown = set(task) - set(self.names)
         if unknown:
             raise ValueError(
-                f"unknown task parameter(s) {sorted(unknown)}; valid: {list(self.names)}"
+                f"unknown task parameter(s) {sorted(map(str, unknown))}; valid: {list(self.names)}"
             )
         parts = []
         for p in self.parameters:
@@ -205,15 +220,8 @@ class TaskSpace:
                 value = p.default
             else:
                 raise ValueError(f"task parameter {p.name!r} missing and it has no default")
-            arr = np.asarray(value, dtype=np.float64).reshape(-1)
-            if arr.size != p.dims:
-                raise ValueError(
-                    f"task parameter {p.name!r}: expected {p.dims} value(s), got {arr.size} ({value!r})"
-                )
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"task parameter {p.name!r}: value {value!r} is not finite")
-            parts.append(arr)
-        return np.concatenate(parts) if parts else np.zeros(0)
+            parts.append(validation.real_array(p.name, value, size=p.dims))
+        return np.concatenate(parts)
 
     def parse(self, text: str) -> dict[str, float | np.ndarray]:
         """Parse a CLI task: `"a=1.5,b=3"` (vector values as `v=0:1:2`) or a JSON object."""
@@ -241,15 +249,19 @@ class TaskSpace:
         return task
 
     def validate_vector(self, vector) -> np.ndarray:
-        """Check shape and finiteness of a flat task vector; return it as float64."""
-        vec = np.asarray(vector, dtype=np.float64)
-        if vec.ndim != 1 or vec.shape[0] != self.dim:
-            raise ValueError(
-                f"task vector: expected shape ({self.dim},) for parameters {list(self.names)}, got {vec.shape}"
-            )
+        """Check a flat task vector (real, finite, shape (dim,)); return it as float64."""
+        valid = f"{self.dim} finite real numbers, shape ({self.dim},), for {list(self.names)}"
+        if not validation.only_reals(vector):
+            raise validation.fail("task vector", vector, valid)
+        try:
+            vec = np.asarray(vector, dtype=np.float64)
+        except (OverflowError, ValueError):
+            raise validation.fail("task vector", vector, valid) from None
+        if vec.shape != (self.dim,):
+            raise validation.fail("task vector", vector, f"{valid}; got shape {vec.shape}")
         if not np.all(np.isfinite(vec)):
             bad = [self._name_of(i) for i in np.flatnonzero(~np.isfinite(vec))]
-            raise ValueError(f"task vector: non-finite value(s) for {bad}: {vec}")
+            raise validation.fail("task vector", vector, f"{valid}; non-finite {bad}")
         return vec
 
     def contains(self, vector) -> bool:

@@ -22,7 +22,9 @@ _MAX_SHOWN = 200  # characters of a rejected value shown in a message
 def fail(name: str, value, valid: str) -> ValueError:
     """The one error format: the parameter, its value (shortened) and what is allowed."""
     shown = repr(value)
-    if len(shown) > _MAX_SHOWN:
+    if isinstance(value, int) and len(shown) > 40:  # 10**400 and the like
+        shown = f"{shown[:12]}...({len(shown.lstrip('-'))} digits)"
+    elif len(shown) > _MAX_SHOWN:
         shown = shown[: _MAX_SHOWN - 3] + "..."
     return ValueError(f"{name}={shown}; valid: {valid}")
 
@@ -126,10 +128,10 @@ def seed(value, name: str = "seed") -> int | None:
     return integer(name, value, 0)
 
 
-def _check_elements(value) -> bool:
+def only_reals(value) -> bool:
     """Recursively: only real numbers in nested lists/tuples (no bools, strings, None, complex)."""
     if isinstance(value, (list, tuple)):
-        return all(_check_elements(v) for v in value)
+        return all(only_reals(v) for v in value)
     if isinstance(value, np.ndarray):
         return value.dtype.kind in "iuf"
     return is_real(value)
@@ -146,7 +148,7 @@ def real_array(name: str, value, *, shape: tuple[int, ...] | None = None, size: 
         what += f" of shape {shape}"
     elif size is not None:
         what += f" ({size} value{'s' if size != 1 else ''})"
-    if not _check_elements(value):
+    if not only_reals(value):
         raise fail(name, value, what)
     try:
         arr = np.asarray(value, dtype=np.float64)

@@ -186,8 +186,16 @@ def test_body_options_are_validated_with_clear_errors():
         make_body("spider", nb_pairs_of_legs=0)
     with pytest.raises(ValueError, match=r"nb_of_bodies=2.5; valid: an integer in \[1, 12\]"):
         make_body("millipede", nb_of_bodies=2.5)
-    with pytest.raises(ValueError, match=r"motors_torque=-1; valid: a number in \[1.0, 10000.0\]"):
+    with pytest.raises(
+        ValueError, match=r"motors_torque=-1; valid: a finite number in \[1, 10000\]"
+    ):
         make_body("wheel", motors_torque=-1)
+    with pytest.raises(ValueError, match="motors_torque='90'"):
+        make_body("wheel", motors_torque="90")
+    with pytest.raises(ValueError, match="planar='False'; valid: True or False"):
+        make_body("classic_bipedal", planar="False")
+    with pytest.raises(ValueError, match="nb_of_bodies=True"):
+        make_body("millipede", nb_of_bodies=True)
     with pytest.raises(ValueError, match="unknown option"):
         make_body("fish", nb_of_bodies=3)
     with pytest.raises(ValueError, match="unknown option"):

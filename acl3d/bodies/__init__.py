@@ -38,10 +38,9 @@ BODIES: tuple[str, ...] = tuple(_REGISTRY)
 
 
 def body_class(name: str) -> type[Body]:
-    name = ALIASES.get(name, name)
-    if name not in _REGISTRY:
+    if not isinstance(name, str) or ALIASES.get(name, name) not in _REGISTRY:
         raise ValueError(f"unknown body {name!r}; valid bodies: {', '.join(BODIES)}")
-    module, cls = _REGISTRY[name].split(":")
+    module, cls = _REGISTRY[ALIASES.get(name, name)].split(":")
     return getattr(importlib.import_module(module), cls)
 
 

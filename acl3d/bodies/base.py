@@ -15,6 +15,7 @@ from typing import ClassVar
 import mujoco
 import numpy as np
 
+from acl3d import validation
 from acl3d.assets import mjcf_path
 
 TORQUE_PENALTY = (
@@ -35,19 +36,6 @@ class Motor:
     contact_geom: str | None = (
         None  # if set, the motor state carries this geom's ground contact flag
     )
-
-
-def check_range(name: str, value, low, high, integer: bool = False):
-    """Validate a body option: a number (an integer if asked) in [low, high], else ValueError."""
-    kind = "an integer" if integer else "a number"
-    ok = (
-        isinstance(value, (int, np.integer))
-        if integer
-        else isinstance(value, (int, float, np.number))
-    )
-    if isinstance(value, bool) or not ok or not low <= value <= high:
-        raise ValueError(f"{name}={value!r}; valid: {kind} in [{low}, {high}]")
-    return value
 
 
 @dataclass(frozen=True)
@@ -84,9 +72,10 @@ class Body:
     initial_push: ClassVar[bool] = True  # the original pushes every body but the fish at spawn
 
     def __init__(self, planar: bool | None = None, motors_torque: float | None = None):
-        self.planar = self.planar_default if planar is None else bool(planar)
+        planar = validation.optional_flag("planar", planar)
+        self.planar = self.planar_default if planar is None else planar
         if motors_torque is not None:
-            self.torque = float(check_range("motors_torque", motors_torque, 1.0, 10_000.0))
+            self.torque = validation.real("motors_torque", motors_torque, 1.0, 10_000.0)
 
     @property
     def action_size(self) -> int:

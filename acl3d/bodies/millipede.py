@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import mujoco
 
+from acl3d import validation
 from acl3d.assets import mjcf_path
-from acl3d.bodies.base import Body, Motor, check_range
+from acl3d.bodies.base import Body, Motor
 
 SEGMENT = 20 / 30
 LEG_DOWN = 3 / 30
@@ -34,7 +35,7 @@ class Millipede(Body):
         nb_of_bodies: int = 4,
     ):
         super().__init__(planar=planar, motors_torque=motors_torque)
-        n = int(check_range("nb_of_bodies", nb_of_bodies, 1, MAX_BODIES, integer=True))
+        n = validation.integer("nb_of_bodies", nb_of_bodies, 1, MAX_BODIES)
         self.nb_of_bodies = n
         self.penalty_divisor = float(n)  # one pair of legs per segment
         self.length = SEGMENT * n

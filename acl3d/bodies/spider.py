@@ -11,8 +11,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from acl3d import validation
 from acl3d.assets import mjcf_path
-from acl3d.bodies.base import Body, Motor, check_range
+from acl3d.bodies.base import Body, Motor
 
 HALF_WIDTH = 10 / 30  # trunk half-size
 LEG_DOWN = 4 / 30  # hips below the trunk centre
@@ -40,8 +41,8 @@ class Spider(Body):
         nb_pairs_of_legs: int = 2,
     ):
         super().__init__(planar=planar, motors_torque=motors_torque)
-        self.nb_pairs_of_legs = int(
-            check_range("nb_pairs_of_legs", nb_pairs_of_legs, 1, MAX_PAIRS, integer=True)
+        self.nb_pairs_of_legs = validation.integer(
+            "nb_pairs_of_legs", nb_pairs_of_legs, 1, MAX_PAIRS
         )
         self.penalty_divisor = float(self.nb_pairs_of_legs)
         self.motors = tuple(

@@ -18,6 +18,17 @@ TRACK_HALF_WIDTH = 2.0  # metres: walls at +-2 m keep full-3D bodies on the trac
 HFIELD_BASE_DEPTH = 1.0
 
 
+def resize_hfield(hfield: mujoco.MjsHField, ncol: int, size) -> None:
+    """Give a template heightfield `ncol` x 2 flat cells of `size`.
+
+    The template's own elevation data (its XML size) must go too: MuJoCo refuses data whose
+    length is not nrow * ncol, which broke grids of another width (e.g. long millipedes).
+    """
+    hfield.ncol, hfield.nrow = ncol, 2
+    hfield.size = size
+    hfield.userdata = np.zeros(2 * ncol)
+
+
 class Arena:
     """Compiled track model + the in-place terrain writer."""
 
@@ -35,9 +46,11 @@ class Arena:
         spec = mujoco.MjSpec.from_file(str(mjcf_path(template)))
         half_length = (grid.x_max - grid.x_min) / 2
         centre_x = (grid.x_max + grid.x_min) / 2
-        hfield = spec.hfield("terrain")
-        hfield.ncol, hfield.nrow = grid.ncol, 2
-        hfield.size = [half_length, TRACK_HALF_WIDTH, MAX_TERRAIN_HEIGHT, HFIELD_BASE_DEPTH]
+        resize_hfield(
+            spec.hfield("terrain"),
+            grid.ncol,
+            [half_length, TRACK_HALF_WIDTH, MAX_TERRAIN_HEIGHT, HFIELD_BASE_DEPTH],
+        )
         spec.geom("terrain").pos = [centre_x, 0.0, 0.0]
         for name, side in (("wall_left", 1), ("wall_right", -1)):
             wall = spec.geom(name)

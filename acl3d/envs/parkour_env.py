@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from acl3d.bodies.base import Body
-from acl3d.envs.arena import Arena
+from acl3d.envs.arena import Arena, resize_hfield
 from acl3d.envs.climbing import Climbing, add_grasp_welds
 from acl3d.envs.lidar import LIDAR_TYPES
 from acl3d.envs.parkour_task import DEFAULT_LIDARS, ParkourLidar, ParkourTask
@@ -83,12 +83,10 @@ class ParkourArena(Arena):
         centre_x = (self.grid.x_max + self.grid.x_min) / 2
         half_length = (self.grid.x_max - self.grid.x_min) / 2
         lo, hi = GROUND_RANGE
-        spec.hfield("terrain").size = [half_length, 2.0, hi - lo, 1.0]
+        resize_hfield(spec.hfield("terrain"), self.grid.ncol, [half_length, 2.0, hi - lo, 1.0])
         spec.geom("terrain").pos = [centre_x, 0.0, lo]
         lo, hi = CEILING_RANGE
-        ceiling = spec.hfield("ceiling")
-        ceiling.ncol, ceiling.nrow = self.grid.ncol, 2
-        ceiling.size = [half_length, 2.0, hi - lo, 1.0]
+        resize_hfield(spec.hfield("ceiling"), self.grid.ncol, [half_length, 2.0, hi - lo, 1.0])
         spec.geom("ceiling").pos = [centre_x, 0.0, hi]
         mid_z, half_z = (
             (CEILING_RANGE[1] + GROUND_RANGE[0]) / 2,
