@@ -18,11 +18,15 @@ from collections.abc import Mapping
 import mujoco
 import numpy as np
 
+from acl3d import validation
 from acl3d.bodies.base import Body
+from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.envs import env_state
 from acl3d.envs.arena import Arena, resize_hfield
 from acl3d.envs.climbing import Climbing, add_grasp_welds
 from acl3d.envs.lidar import LIDAR_TYPES
 from acl3d.envs.parkour_task import DEFAULT_LIDARS, ParkourLidar, ParkourTask
+from acl3d.envs.profiles import PARKOUR
 from acl3d.envs.track_env import TrackEnv
 from acl3d.envs.water import PUSH_CLIP, Water
 from acl3d.task_space import TaskSpace
@@ -46,6 +50,8 @@ SEGMENT_RANGE = 0.4 * np.pi  # joint limits between pieces
 WATER_HALF_HEIGHT = 100.0
 WATER_HALF_WIDTH = 1.98  # just inside the terrain faces (y = +-2), so they do not z-fight
 HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
+_SURVIVAL = ("steps_under_water", "steps_out_of_water", "dead", "under_water")  # ParkourTask's
+_GRASP = ("ready", "holding", "touching")  # Climbing's per-hand flags
 
 
 class ParkourArena(Arena):
@@ -214,17 +220,13 @@ class ParkourEnv(TrackEnv):
         camera: str | None = None,
         quality: str = "fast",
     ):
-        if input_space not in INPUT_SPACES:
-            raise ValueError(f"input_space={input_space!r}; valid: {list(INPUT_SPACES)}")
-        if lidars_type is not None and lidars_type not in LIDAR_TYPES:
-            raise ValueError(f"lidars_type={lidars_type!r}; valid: {list(LIDAR_TYPES)} or None")
-        if not (np.isfinite(water_clip) and water_clip >= 0):
-            raise ValueError(f"water_clip={water_clip!r}; valid: a number >= 0")
+        validation.choice("input_space", input_space, list(INPUT_SPACES))
+        validation.choice("lidars_type", lidars_type, [None, *LIDAR_TYPES])
         self.input_space = input_space
-        self.end_on_death = bool(end_on_death)
+        self.end_on_death = validation.flag("end_on_death", end_on_death)
         self._lidars_type = lidars_type
-        self._water_clip = float(water_clip)
-        self.movable_creepers = bool(movable_creepers)
+        self._water_clip = validation.real("water_clip", water_clip, 0.0)
+        self.movable_creepers = validation.flag("movable_creepers", movable_creepers)
         super().__init__(
             track="stump",
             body=body,
@@ -244,6 +246,11 @@ class ParkourEnv(TrackEnv):
     # ------------------------------------------------------------------ construction hooks
     def _make_task_space(self, task_parameters) -> TaskSpace:
         return parkour_task_space(self.input_space)
+
+    @property
+    def curriculum_profile(self) -> CurriculumProfile:
+        """What a curriculum needs to know about Parkour (reward bounds, named test sets)."""
+        return PARKOUR
 
     def _make_generator(self) -> ParkourGenerator:
         return ParkourGenerator(start_pad_for(self.body.length))
@@ -282,18 +289,90 @@ class ParkourEnv(TrackEnv):
             grasp[-self._nb_grasp :] = 1.0
             for _ in range(HANG_STEPS):
                 self._apply_action(grasp)
-                mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+                self.physics.step()
                 self.climbing.after_step(self.data)
             obs = self.task.reset(self.model, self.data)
         return obs, info
 
     # ------------------------------------------------------------------ internals
     def _new_terrain(self) -> None:
-        self.terrain = self.generator.generate(self.get_task(), self.np_random)
-        self.arena.write_terrain(self.terrain)
-        self.water.level = self.terrain.water_z
-        self.task.lidar.water_level = self.terrain.water_z
+        self._use_terrain(self.generator.generate(self.get_task(), self.np_random))
         self.task.reset_survival()
+
+    def _use_terrain(self, terrain: ParkourTerrain) -> None:
+        self.terrain = terrain
+        self.arena.write_terrain(terrain)
+        self.water.level = terrain.water_z
+        self.task.lidar.water_level = terrain.water_z
+
+    # ------------------------------------------------------------------ exact snapshots
+    def _signature(self) -> str:
+        return (
+            f"{super()._signature()} input_space={self.input_space}, "
+            f"lidars={self.task.lidar.kind}, end_on_death={self.end_on_death}, "
+            f"water_clip={self._water_clip!r}, movable_creepers={self.movable_creepers}"
+        )
+
+    def _episode_state(self) -> dict:
+        """Terrain (ground, ceiling, water level, creepers), water, survival and grasp state."""
+        t, task = self.terrain, self.task
+        state = {
+            "terrain/ground": t.ground.copy(),
+            "terrain/ceiling": t.ceiling.copy(),
+            "terrain/creepers": t.creepers.copy(),
+            "terrain/water_z": float(t.water_z),
+            "water/wet": self.water.wet,
+            **{f"survival/{key}": getattr(task, key) for key in _SURVIVAL},
+        }
+        if self.climbing:
+            for key in _GRASP:
+                state[f"climbing/{key}"] = getattr(self.climbing, key).copy()
+        return state
+
+    def _check_episode_state(self, state) -> dict:
+        grasp = [f"climbing/{key}" for key in _GRASP] if self.climbing else []
+        terrain = ("terrain/ground", "terrain/ceiling", "terrain/creepers", "terrain/water_z")
+        survival = [f"survival/{key}" for key in _SURVIVAL]
+        env_state.check_keys(state, (*terrain, "water/wet", *survival, *grasp))
+        creepers = np.asarray(state["terrain/creepers"])
+        pool = len(self.arena.creeper_bodies) // self.arena.segments
+        if (
+            creepers.dtype.kind != "f"
+            or creepers.ndim != 2
+            or creepers.shape[1] != 4
+            or len(creepers) > pool
+            or not np.all(np.isfinite(creepers))
+        ):
+            raise validation.fail(
+                "state['terrain/creepers']", creepers, f"a finite (k <= {pool}, 4) float array"
+            )
+        profile = np.zeros(self.generator.nb_points)
+        checked = {
+            "ground": env_state.array(state, "terrain/ground", profile),
+            "ceiling": env_state.array(state, "terrain/ceiling", profile),
+            "creepers": creepers.astype(np.float64),
+            "water_z": env_state.scalar(state, "terrain/water_z", "real"),
+            "wet": env_state.scalar(state, "water/wet", "flag"),
+        }
+        for key in _SURVIVAL:
+            kind = "integer" if key.startswith("steps") else "flag"
+            checked[key] = env_state.scalar(state, f"survival/{key}", kind, 0)
+        for key in _GRASP if self.climbing else ():
+            checked[key] = env_state.array(state, f"climbing/{key}", getattr(self.climbing, key))
+        return checked
+
+    def _set_episode_state(self, c: dict) -> None:
+        terrain = ParkourTerrain(
+            self.generator.x, c["ground"], c["ceiling"], c["water_z"], c["creepers"]
+        )
+        self._use_terrain(terrain)
+        self.water.wet = c["wet"]
+        for key in _SURVIVAL:
+            setattr(self.task, key, c[key])
+        if self.climbing:  # welds: eq_active comes back with the physics
+            self.climbing.reset(self.data, terrain, self.arena.nb_creeper_geoms)
+            for key in _GRASP:
+                setattr(self.climbing, key, c[key])
 
     def _place_body(self) -> None:
         if self.body.initial_push:

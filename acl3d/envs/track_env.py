@@ -14,9 +14,13 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from acl3d import validation
 from acl3d.bodies import Body, make_body
+from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.envs import env_state
 from acl3d.envs.arena import Arena
 from acl3d.envs.lidar import ProfileLidar
+from acl3d.envs.profiles import HEXAGON_TRACKS, STUMP_TRACKS
 from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
 from acl3d.rendering import TrackRenderer
 from acl3d.task_space import TaskSpace
@@ -31,7 +35,9 @@ TRACKS = {
     "stump": ("stump_height", "obstacle_spacing"),
     "hexagon": ("poly_shape",),
 }
+TRACK_PROFILES = {"stump": STUMP_TRACKS, "hexagon": HEXAGON_TRACKS}  # curriculum facts per track
 CONTROL_DT = 1 / 50  # 50 Hz control, as the original
+MAX_IMAGE_SIZE = 8192  # pixels, per side of a rendered frame
 INIT_PUSH = 5.0  # the original pushes the hull once with a horizontal force U(-5, 5)
 
 
@@ -46,6 +52,10 @@ class TrackEnv(gym.Env):
         body_options: options of the body (e.g. leg counts), validated by the body.
         frame_skip: physics steps per control step (timestep = 0.02 / frame_skip); default per body.
         render_mode, width, height, camera, quality: offscreen rendering ("fast" or "high").
+
+    Every argument is checked before anything is built (ValueError naming it, its value and
+    what is allowed). `get_state()` / `set_state()` snapshot and restore a running episode
+    exactly (see `acl3d.envs.env_state`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -64,28 +74,47 @@ class TrackEnv(gym.Env):
         camera: str | None = None,
         quality: str = "fast",
     ):
-        if track not in TRACKS:
-            raise ValueError(f"track={track!r}; valid: {list(TRACKS)}")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode={render_mode!r}; valid: None, 'rgb_array'")
-        if quality not in ("fast", "high"):
-            raise ValueError(f"quality={quality!r}; valid: 'fast' (no MSAA, no shadows) or 'high'")
+        validation.choice("track", track, list(TRACKS))
+        validation.choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
+        validation.choice("quality", quality, ("fast", "high"))
+        validation.integer("width", width, 1, MAX_IMAGE_SIZE)
+        validation.integer("height", height, 1, MAX_IMAGE_SIZE)
+        if camera is not None and not isinstance(camera, str):
+            raise validation.fail("camera", camera, "None or a camera name")
+        if frame_skip is not None:
+            validation.integer("frame_skip", frame_skip, 1, 20)
+        if body_options is not None and not isinstance(body_options, Mapping):
+            raise validation.fail("body_options", body_options, "None or a dict of body options")
+        if task_parameters is not None and (
+            isinstance(task_parameters, str)
+            or not isinstance(task_parameters, (list, tuple))
+            or not all(isinstance(n, str) for n in task_parameters)
+        ):
+            raise validation.fail(
+                "task_parameters", task_parameters, "None or a list of track parameter names"
+            )
         self.track = track
-        self.body = (
-            body
-            if isinstance(body, Body)
-            else make_body(body, planar=planar, **dict(body_options or {}))
-        )
-        frame_skip = self.body.frame_skip if frame_skip is None else frame_skip
-        if not isinstance(frame_skip, int) or not 1 <= frame_skip <= 20:
-            raise ValueError(f"frame_skip={frame_skip!r}; valid: an integer in [1, 20]")
+        if isinstance(body, Body):
+            self.body = body
+        elif isinstance(body, str):
+            self.body = make_body(body, planar=planar, **dict(body_options or {}))
+        else:
+            raise validation.fail("body", body, "a body name or an acl3d.bodies.Body")
+        frame_skip = self.body.frame_skip if frame_skip is None else int(frame_skip)
         self.task_space: TaskSpace = self._make_task_space(task_parameters)
         self.generator = self._make_generator()
         self.frame_skip = frame_skip
         self.arena = self._build_arena()
         self.model, self.bound = self.arena.model, self.arena.bound
         self.model.opt.timestep = CONTROL_DT / frame_skip
+        if (
+            camera is not None
+            and mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0
+        ):
+            cameras = [self.model.camera(i).name for i in range(self.model.ncam)]
+            raise validation.fail("camera", camera, f"None or one of {cameras}")
         self.data = mujoco.MjData(self.model)
+        self.physics = env_state.PhysicsState(self.model, self.data, frame_skip)
         self._warning_counts = self.data.warning.number  # a live view
         self.task = self._make_task()
 
@@ -113,6 +142,11 @@ class TrackEnv(gym.Env):
     def _make_task_space(self, task_parameters) -> TaskSpace:
         return track_task_space(task_parameters or TRACKS[self.track])
 
+    @property
+    def curriculum_profile(self) -> CurriculumProfile:
+        """What a curriculum needs to know about this track (reward bounds, priors, test sets)."""
+        return TRACK_PROFILES[self.track]
+
     def _make_generator(self):
         return TrackGenerator(TrackGrid())
 
@@ -129,12 +163,16 @@ class TrackEnv(gym.Env):
     # ------------------------------------------------------------------ tasks
     def set_task(self, task) -> None:
         """Set the task used from the next reset on: a dict (partial: defaults fill the rest) or a flat vector."""
+        self._task_vector = self._checked_task(task)
+
+    def _checked_task(self, task) -> np.ndarray:
+        """The task's flat vector, if the generator can build it (else ValueError)."""
         if isinstance(task, Mapping):
             vector = self.task_space.to_vector(task)
         else:
             vector = self.task_space.validate_vector(task)
         self._check_buildable(self.task_space.to_dict(vector))
-        self._task_vector = vector
+        return vector
 
     def set_environment(self, **params) -> None:
         """TeachMyAgent's name for `set_task(params)`."""
@@ -147,14 +185,113 @@ class TrackEnv(gym.Env):
     def task_vector(self) -> np.ndarray:
         return self._task_vector.copy()
 
+    # ------------------------------------------------------------------ exact snapshots
+    def get_state(self) -> dict:
+        """This episode as a flat dict of numpy arrays and JSON scalars (store it as JSON + NPZ).
+
+        Physics (with the state the last step started from), terrain, task, the env's RNG and the
+        episode's accumulators: an env built with the same arguments continues bit-identically
+        after `set_state()`. Gymnasium wrappers keep their own counters (TimeLimit's step count):
+        `acl3d.envs.env_state.get_env_state(env)` adds them for an env from `gymnasium.make`.
+        """
+        if not self.physics.stepped:
+            raise gym.error.ResetNeeded("get_state() needs a running episode: call reset() first")
+        return {
+            "signature": self._signature(),
+            "task_vector": self._task_vector.copy(),
+            "episode_return": float(self._episode_return),
+            "instability_warnings": int(self._warnings),
+            "rng_seed": self._np_random_seed,
+            "task/prev_shaping": float(self.task.prev_shaping),
+            "task/critical_contact": bool(self.task.critical_contact),
+            **env_state.rng_state(self.np_random),
+            **self.physics.get(),
+            **self._episode_state(),
+        }
+
+    def set_state(self, state) -> None:
+        """Continue from a `get_state()` snapshot of an env built with the same arguments.
+
+        The whole snapshot is checked before anything changes: a rejected one (ValueError)
+        leaves this env as it was.
+        """
+        env_state.check_keys(state, ("signature", "rng_seed"))
+        if state["signature"] != self._signature():
+            raise validation.fail(
+                "state['signature']", state["signature"], f"this env's {self._signature()!r}"
+            )
+        seed = state["rng_seed"]
+        checked = {
+            "task_vector": self._checked_task(
+                env_state.array(state, "task_vector", self._task_vector)
+            ),
+            "episode_return": env_state.scalar(state, "episode_return", "real"),
+            "instability_warnings": env_state.scalar(state, "instability_warnings", "integer", 0),
+            "rng_seed": None if seed is None else validation.integer("state['rng_seed']", seed, -1),
+            "task/prev_shaping": env_state.scalar(state, "task/prev_shaping", "real"),
+            "task/critical_contact": env_state.scalar(state, "task/critical_contact", "flag"),
+            "rng": env_state.rng_from_state(state),
+            "physics": self.physics.check(state),
+            "episode": self._check_episode_state(state),
+        }
+        previous = self.get_state() if self.physics.stepped else None
+        try:
+            self._set_checked_state(checked)
+        except ValueError:
+            if previous is None:
+                mujoco.mj_resetData(self.model, self.data)
+                self.physics.stepped = False
+            else:
+                self.set_state(previous)
+            raise
+
+    def _set_checked_state(self, s: dict) -> None:
+        self._task_vector = s["task_vector"]
+        self._episode_return = s["episode_return"]
+        self._warnings = s["instability_warnings"]
+        self.np_random = s["rng"]
+        self._np_random_seed = s["rng_seed"]
+        self.task.prev_shaping = s["task/prev_shaping"]
+        self.task.critical_contact = s["task/critical_contact"]
+        self._set_episode_state(s["episode"])  # terrain first: the physics replay touches it
+        self.physics.set(s["physics"])
+
+    def _signature(self) -> str:
+        """What must match between the env that saved a state and the one restoring it."""
+        m = self.model
+        return (
+            f"{type(self).__name__}(track={self.track}, body={self.body.describe()}, "
+            f"frame_skip={self.frame_skip}, task={list(self.task_space.names)}, "
+            f"nq={m.nq}, nv={m.nv}, nu={m.nu}, ngeom={m.ngeom})"
+        )
+
+    def _episode_state(self) -> dict:
+        """The per-episode world: the terrain profile (subclasses add theirs)."""
+        return {"terrain/heights": self.arena.heights.copy()}
+
+    def _check_episode_state(self, state) -> dict:
+        env_state.check_keys(state, ("terrain/heights",))
+        return {"heights": env_state.array(state, "terrain/heights", self.arena.heights)}
+
+    def _set_episode_state(self, checked: dict) -> None:
+        self.arena.write_heights(checked["heights"])
+
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        if options and "task" in options:
-            self.set_task(options["task"])
+        """New episode; `options={"task": ...}` sets the task first. Everything (seed, options,
+        task) is checked before anything changes."""
+        seed = validation.seed(seed)
+        if options is not None and not isinstance(options, Mapping):
+            raise validation.fail("options", options, "None or a dict (valid keys: ['task'])")
         unknown = set(options or {}) - {"task"}
         if unknown:
-            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['task']")
+            raise ValueError(
+                f"unknown reset option(s) {sorted(map(str, unknown))}; valid: ['task']"
+            )
+        task = self._checked_task(options["task"]) if options and "task" in options else None
+        super().reset(seed=seed)
+        if task is not None:
+            self._task_vector = task
         self._new_terrain()
         mujoco.mj_resetData(self.model, self.data)
         self._place_body()
@@ -164,20 +301,18 @@ class TrackEnv(gym.Env):
         self._apply_action(
             np.zeros(self.body.action_size)
         )  # the original returns the obs after one idle step
-        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        self.physics.step()
         obs = self.task.reset(self.model, self.data)
         return obs, self._info(False)
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != (self.body.action_size,):
-            raise ValueError(
-                f"action: expected shape ({self.body.action_size},), got {action.shape}"
-            )
-        if not np.isfinite(action).all():
-            raise ValueError(f"action: non-finite values {action}")
+        action = validation.real_array("action", action, shape=(self.body.action_size,))
         self._apply_action(action)
-        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        self.physics.step()
+        return self._after_physics(action)
+
+    def _after_physics(self, action: np.ndarray):
+        """The step's result once physics ran (the batched env calls it per Parkour sub-env)."""
         obs, reward, terminated, _ = self.task.step(self.model, self.data, action)
         unstable = self._check_instability()
         if unstable:

@@ -241,3 +241,12 @@ class Water:
     def clear(self, data: mujoco.MjData) -> None:
         data.xfrc_applied[self.body_ids] = 0.0
         self._wet = False
+
+    @property
+    def wet(self) -> bool:
+        """Forces were written last step (the next dry step clears them): part of env state."""
+        return self._wet
+
+    @wet.setter
+    def wet(self, value: bool) -> None:
+        self._wet = bool(value)

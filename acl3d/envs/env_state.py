@@ -1,0 +1,225 @@
+"""Snapshots of an env's state that restore bit-identically: physics, RNG and wrapper counters.
+
+An env's state is a flat dict of numpy arrays and JSON scalars (str, int, float, bool, None) so a
+run directory can store it as JSON + NPZ without pickle. The pieces here are shared by every env
+(and by batched envs, which hold one of each per sub-env):
+
+* `PhysicsState`: MuJoCo's integration state (`mjSTATE_INTEGRATION`: time, qpos, qvel, act,
+  warm start, ctrl, applied forces, active equalities, ...) plus the model arrays the envs write
+  (actuator force ranges, weld anchors). After `mj_step` MuJoCo's derived quantities (positions,
+  velocities of bodies, contacts) still describe the state *before* the last integration, and the
+  envs read some of them before the next step (water forces). So the physics remembers the
+  integration state each control step starts from; restoring sets that state and replays the
+  step, which recomputes every derived quantity exactly, then checks that the replay lands on the
+  saved current state.
+* `rng_state` / `rng_from_state`: a numpy bit generator's state, big integers as decimal strings.
+* `get_env_state` / `set_env_state`: the same for an env made by `gymnasium.make`, with the
+  TimeLimit and OrderEnforcing counters of its wrappers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from acl3d import validation
+
+INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
+PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMSTART
+_JSON_SCALARS = (str, int, float, bool, type(None))
+_WRAPPER_COUNTERS = ("_elapsed_steps", "_has_reset")  # TimeLimit, OrderEnforcing
+
+
+def check_keys(state, keys, what: str = "state") -> None:
+    """A mapping holding every key in `keys` (else ValueError listing the missing ones)."""
+    if not isinstance(state, Mapping):
+        raise validation.fail(what, type(state).__name__, "a dict from get_state()")
+    missing = [k for k in keys if k not in state]
+    if missing:
+        raise ValueError(f"{what}: missing key(s) {missing}; pass a dict from get_state()")
+
+
+def array(state: Mapping, key: str, like: np.ndarray) -> np.ndarray:
+    """state[key] as an array of `like`'s shape and dtype; finite if real (else ValueError)."""
+    value = np.asarray(state[key])
+    same_kind = value.dtype.kind == like.dtype.kind or (
+        value.dtype.kind in "iu" and like.dtype.kind in "iu"
+    )
+    if value.shape != like.shape or not same_kind:
+        raise validation.fail(
+            f"state[{key!r}]", value, f"an array of shape {like.shape} and dtype {like.dtype}"
+        )
+    if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+        raise validation.fail(f"state[{key!r}]", value, "finite values")
+    return value.astype(like.dtype, copy=True)
+
+
+def scalar(state: Mapping, key: str, kind: str, low: float = -np.inf, high: float = np.inf):
+    """state[key] as a "real", "integer" or "flag" (JSON and NPZ both give these back)."""
+    value = state[key]
+    if isinstance(value, np.ndarray) and value.shape == ():
+        value = value[()]
+    name = f"state[{key!r}]"
+    if kind == "flag":
+        return validation.flag(name, value)
+    if kind == "integer":
+        return validation.integer(name, value, low, high)
+    return validation.real(name, value, low, high)
+
+
+# ---------------------------------------------------------------------- physics
+class PhysicsState:
+    """Steps the physics `nstep` substeps at a time and snapshots/restores it exactly."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, nstep: int):
+        self.model, self.data, self.nstep = model, data, nstep
+        self._start = np.zeros(mujoco.mj_stateSize(model, INTEGRATION))
+        self.stepped = False
+
+    def step(self) -> None:
+        """`mj_step` x nstep, remembering the integration state it starts from."""
+        mujoco.mj_getState(self.model, self.data, self._start, INTEGRATION)
+        mujoco.mj_step(self.model, self.data, nstep=self.nstep)
+        self.stepped = True
+
+    def get(self) -> dict:
+        m, d = self.model, self.data
+        now = np.empty_like(self._start)
+        mujoco.mj_getState(m, d, now, INTEGRATION)
+        return {
+            "physics/step_start": self._start.copy(),
+            "physics/now": now,
+            "physics/warnings": d.warning.number.copy(),
+            "physics/forcerange": m.actuator_forcerange.copy(),
+            "physics/eq_data": m.eq_data.copy(),
+            "physics/eq_obj2id": m.eq_obj2id.copy(),
+        }
+
+    def check(self, state: Mapping) -> dict:
+        """The checked physics part of `state` (nothing is changed)."""
+        like = self.get()
+        check_keys(state, like)
+        return {key: array(state, key, value) for key, value in like.items()}
+
+    def set(self, checked: dict) -> None:
+        """Restore a `check()`ed snapshot: replay the last control step from its start state.
+
+        Raises ValueError (after restoring the previous physics) if the replay does not land on
+        the saved state: the snapshot came from another model or was edited.
+        """
+        previous, replayable = self.get(), self.stepped
+        try:
+            self._restore(checked)
+        except ValueError:
+            self._restore(previous, replay=replayable)
+            raise
+
+    def _restore(self, s: dict, replay: bool = True) -> None:
+        m, d = self.model, self.data
+        m.actuator_forcerange[:] = s["physics/forcerange"]
+        m.eq_data[:] = s["physics/eq_data"]
+        m.eq_obj2id[:] = s["physics/eq_obj2id"]
+        replayed = np.empty(mujoco.mj_stateSize(m, PHYSICS))
+        if replay:
+            mujoco.mj_setState(m, d, s["physics/step_start"], INTEGRATION)
+            mujoco.mj_step(m, d, nstep=self.nstep)
+            mujoco.mj_getState(m, d, replayed, PHYSICS)
+        mujoco.mj_setState(m, d, s["physics/now"], INTEGRATION)
+        saved = np.empty_like(replayed)
+        mujoco.mj_getState(m, d, saved, PHYSICS)
+        d.warning.number[:] = s["physics/warnings"]
+        self._start[:] = s["physics/step_start"]
+        self.stepped = replay
+        if replay and not np.array_equal(replayed, saved):
+            raise ValueError(
+                "state: replaying its last physics step does not reproduce it; "
+                "it was saved by an env with another model (body, options, frame_skip) or edited"
+            )
+
+
+# ---------------------------------------------------------------------- random generators
+def rng_state(generator: np.random.Generator, prefix: str = "rng/") -> dict:
+    """A generator's bit-generator state, flat: nested keys joined by "/", big ints as strings."""
+    out = {}
+
+    def flatten(value, key):
+        if isinstance(value, Mapping):
+            for k, v in value.items():
+                flatten(v, f"{key}/{k}" if key else k)
+        elif isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+            out[prefix + key] = str(int(value))  # 128-bit PCG64 words do not fit JSON doubles
+        else:
+            out[prefix + key] = np.array(value) if isinstance(value, np.ndarray) else value
+
+    flatten(generator.bit_generator.state, "")
+    return out
+
+
+def rng_from_state(state: Mapping, prefix: str = "rng/") -> np.random.Generator:
+    """Inverse of `rng_state` (ValueError if the keys do not describe a bit generator)."""
+    nested: dict = {}
+    for key, value in state.items():
+        if not key.startswith(prefix):
+            continue
+        *path, last = key[len(prefix) :].split("/")
+        node = nested
+        for part in path:
+            node = node.setdefault(part, {})
+        if isinstance(value, np.ndarray) and value.shape == ():
+            value = value[()]
+        if isinstance(value, (str, np.str_)) and last != "bit_generator":
+            if not str(value).isdigit():
+                raise validation.fail(prefix + key, value, "a non-negative integer in a string")
+            value = int(value)
+        node[last] = value
+    name = nested.get("bit_generator")
+    if not isinstance(name, (str, np.str_)) or not isinstance(
+        getattr(np.random, str(name), None), type
+    ):
+        raise validation.fail(f"state[{prefix + 'bit_generator'!r}]", name, "a numpy bit generator")
+    bit_generator = getattr(np.random, str(name))()
+    try:
+        bit_generator.state = {**nested, "bit_generator": str(name)}
+    except (TypeError, ValueError, KeyError) as exc:
+        raise ValueError(f"state[{prefix!r}...]: not a {name} state ({exc})") from None
+    return np.random.Generator(bit_generator)
+
+
+def is_serialisable(state: Mapping) -> bool:
+    """True if every value is a numpy array or a JSON scalar (what JSON + NPZ can store)."""
+    return all(isinstance(k, str) for k in state) and all(
+        isinstance(v, (np.ndarray, *_JSON_SCALARS)) for v in state.values()
+    )
+
+
+# ---------------------------------------------------------------------- wrapped envs
+def get_env_state(env: gym.Env) -> dict:
+    """`env.unwrapped.get_state()` plus the counters of Gymnasium's wrappers around it
+    (`wrappers/<depth>/<counter>`), for an env made by `gymnasium.make`."""
+    state = dict(env.unwrapped.get_state())
+    depth = 0
+    while isinstance(env, gym.Wrapper):
+        for counter in _WRAPPER_COUNTERS:
+            if hasattr(env, counter):
+                state[f"wrappers/{depth}/{counter}"] = getattr(env, counter)
+        env, depth = env.env, depth + 1
+    return state
+
+
+def set_env_state(env: gym.Env, state: Mapping) -> None:
+    """Inverse of `get_env_state` on an env made with the same arguments."""
+    updates, depth, wrapper = [], 0, env
+    while isinstance(wrapper, gym.Wrapper):
+        for counter in _WRAPPER_COUNTERS:
+            key = f"wrappers/{depth}/{counter}"
+            if hasattr(wrapper, counter):
+                check_keys(state, [key])
+                kind = "flag" if counter == "_has_reset" else "integer"
+                updates.append((wrapper, counter, scalar(state, key, kind, 0)))
+        wrapper, depth = wrapper.env, depth + 1
+    env.unwrapped.set_state({k: v for k, v in state.items() if not k.startswith("wrappers/")})
+    for wrapper, counter, value in updates:
+        setattr(wrapper, counter, value)
