@@ -283,3 +283,24 @@ def test_dm_control_walkers_use_acl3d_servos_and_collision_scheme():
     body_z = env.data.xpos[env.bound.root_id, 2]
     assert body_z > 0.5  # spawned standing: the base is at the pelvis, above the feet
     assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "walker/cmu/head") in geoms
+
+
+@pytest.mark.parametrize(
+    "env_id", ["acl3d/StumpTracks-v0", "acl3d/HexagonTracks-v0", "acl3d/Parkour-v0"]
+)
+@pytest.mark.parametrize(
+    "body, options",
+    [("millipede", {"nb_of_bodies": 12}), ("spider", {"nb_pairs_of_legs": 8})],
+)
+def test_the_largest_documented_bodies_build_on_every_track(env_id, body, options):
+    env = gym.make(env_id, body=body, body_options=options)
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(np.full(env.action_space.shape, 0.5))
+    assert np.all(np.isfinite(obs))
+
+
+def test_an_odd_start_pad_builds_on_parkour():
+    """11 segments widen the start pad to 21 TS: the heightfields get 241 columns."""
+    env = gym.make("acl3d/Parkour-v0", body="millipede", body_options={"nb_of_bodies": 11})
+    env.reset(seed=0)
+    assert env.unwrapped.model.hfield_ncol.tolist() == [241, 241]

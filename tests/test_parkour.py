@@ -9,7 +9,9 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d  # noqa: F401  (registers the environments)
 from acl3d.envs.parkour_task import CREEPER_FLAG, SURVIVAL_STEPS, WATER_FLAG
+from acl3d.envs.profiles import PARKOUR
 from acl3d.envs.water import Water
+from acl3d.teachers import test_sets
 from acl3d.terrain import parkour_test_sets
 from acl3d.terrain.parkour import (
     CPPN_LAYERS,
@@ -131,6 +133,12 @@ def test_bad_options_raise():
         make(input_space="hard")
     with pytest.raises(ValueError, match="lidars_type='side'"):
         make(lidars_type="side")
+    with pytest.raises(ValueError, match="end_on_death='False'; valid: True or False"):
+        make(end_on_death="False")
+    with pytest.raises(ValueError, match="movable_creepers=1"):
+        make(movable_creepers=1)
+    with pytest.raises(ValueError, match=r"water_clip=inf; valid: a finite number >= 0"):
+        make(water_clip=float("inf"))
 
 
 # ---------------------------------------------------------------------------- environment API
@@ -428,10 +436,11 @@ def test_test_sets_are_seeded_and_inside_the_training_space(name, tmp_path):
     space = parkour_task_space()
     tasks = parkour_test_sets.build(name)
     assert tasks.shape == (100, 8) and all(space.contains(t) for t in tasks)
-    assert np.array_equal(tasks, parkour_test_sets.resolve(f"{name}_test_set_v1", space))
+    named = test_sets.resolve(f"{name}_test_set_v1", space, profile=PARKOUR)
+    assert np.array_equal(tasks, named)
     path = tmp_path / f"{name}.csv"
-    parkour_test_sets.save(path, name)
-    assert np.allclose(parkour_test_sets.resolve(str(path), space), tasks)
+    test_sets.save(path, tasks, space)
+    assert np.allclose(test_sets.resolve(str(path), space, profile=PARKOUR), tasks)
     water = tasks[:, space.slice("water_level")]
     if name == "swimming":
         assert np.all(water == 1.0)

@@ -104,10 +104,59 @@ def test_values_beyond_benchmark_bounds_are_accepted():
 def test_bad_actions_raise():
     env = make()
     env.reset(seed=0)
-    with pytest.raises(ValueError, match="action"):
-        env.step(np.zeros(3))
-    with pytest.raises(ValueError, match="action"):
-        env.step(np.array([0, np.nan, 0, 0]))
+    before = env.unwrapped.get_state()
+    for action in (np.zeros(3), np.array([0, np.nan, 0, 0]), np.array([0.5j, 0, 0, 0]), ["1"] * 4):
+        with pytest.raises(ValueError, match="action="):
+            env.step(action)
+    after = env.unwrapped.get_state()
+    assert all(np.array_equal(before[k], after[k]) for k in before)
+
+
+def same_state(env, before) -> bool:
+    after = env.get_state()
+    return all(np.array_equal(before[k], after[k]) for k in before)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"options": {"task": {"stump_height": 2.0}, "tsk": 1}}, "tsk"),
+        ({"seed": 7, "options": {"task": {"stump_height": np.nan}}}, "stump_height"),
+        ({"seed": 7, "options": {"task": {"stump_height": "2"}}}, "stump_height='2'"),
+        ({"seed": True}, "seed=True"),
+        ({"seed": -1}, "seed=-1"),
+        ({"seed": 1.0}, "seed=1.0"),
+        ({"options": [("task", {})]}, "options="),
+    ],
+)
+def test_a_rejected_reset_changes_nothing(kwargs, match):
+    env = make().unwrapped
+    env.reset(seed=0)
+    env.step(np.full(4, 0.3))
+    before = env.get_state()
+    with pytest.raises(ValueError, match=match):
+        env.reset(**kwargs)
+    assert same_state(env, before)  # task, RNG (no reseed), terrain and physics untouched
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"planar": "False"}, "planar='False'"),
+        ({"frame_skip": 2.0}, "frame_skip=2.0"),
+        ({"frame_skip": True}, "frame_skip=True"),
+        ({"width": 0}, "width=0"),
+        ({"camera": "nowhere"}, "camera='nowhere'"),
+        ({"body_options": [("nb_of_bodies", 3)]}, "body_options="),
+        ({"task_parameters": "stump_height"}, "task_parameters="),
+        ({"task_parameters": ()}, "task_parameters=()"),
+        ({"body": 3}, "body=3"),
+        ({"quality": "best"}, "quality='best'"),
+    ],
+)
+def test_bad_constructor_arguments_name_the_argument(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        make(**kwargs)
 
 
 def test_forward_progress_reward_and_success_flag():

@@ -88,10 +88,13 @@ class TrackEnv(gym.Env):
         if task_parameters is not None and (
             isinstance(task_parameters, str)
             or not isinstance(task_parameters, (list, tuple))
+            or not task_parameters
             or not all(isinstance(n, str) for n in task_parameters)
         ):
             raise validation.fail(
-                "task_parameters", task_parameters, "None or a list of track parameter names"
+                "task_parameters",
+                task_parameters,
+                "None or a non-empty list of track parameter names",
             )
         self.track = track
         if isinstance(body, Body):
@@ -140,7 +143,7 @@ class TrackEnv(gym.Env):
 
     # ------------------------------------------------------------------ construction hooks
     def _make_task_space(self, task_parameters) -> TaskSpace:
-        return track_task_space(task_parameters or TRACKS[self.track])
+        return track_task_space(TRACKS[self.track] if task_parameters is None else task_parameters)
 
     @property
     def curriculum_profile(self) -> CurriculumProfile:
