@@ -73,9 +73,9 @@ def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
         from acl3d.teachers.controller import TeacherController
 
         probe = make_env("stump-tracks", "classic_bipedal")
-        space = probe.unwrapped.task_space
+        space, profile = probe.unwrapped.task_space, probe.unwrapped.curriculum_profile
         probe.close()
-        controller = TeacherController(teacher, space, seed, env_name="stump-tracks")
+        controller = TeacherController(teacher, space, seed, profile=profile)
         venv = TimedCurriculumVecEnv(
             make_vec_env("stump-tracks", "classic_bipedal", n_envs, curriculum=True), controller
         )

@@ -1,4 +1,4 @@
-"""TeacherController, DimensionsShuffler, expert knowledge and test sets."""
+"""TeacherController, DimensionsShuffler, curriculum profiles, expert knowledge and test sets."""
 
 from __future__ import annotations
 
@@ -9,11 +9,17 @@ import numpy as np
 import pytest
 import torch
 
+from acl3d import envs
+from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.envs.profiles import HEXAGON_TRACKS, PARKOUR, STUMP_TRACKS
 from acl3d.task_space import TaskSpace
 from acl3d.teachers import TEACHERS, load_state, teacher_class
 from acl3d.teachers import test_sets as ts
-from acl3d.teachers.controller import DimensionsShuffler, TeacherController
-from acl3d.teachers.expert_knowledge import canonical_env_name, expert_knowledge, initial_dist
+from acl3d.teachers.controller import TeacherController
+from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
+from acl3d.teachers.expert_knowledge import expert_knowledge
+from acl3d.terrain import parkour_test_sets
+from acl3d.terrain.parkour import parkour_task_space
 
 torch.set_num_threads(1)
 
@@ -79,24 +85,54 @@ def test_shuffler_seeded():
 
 # ---------------------------------------------------------------------- training records
 @pytest.mark.parametrize(
-    "env, ret, expected",
+    "profile, ret, expected",
     [
-        ("acl3d/StumpTracks-v0", 100.0, 0.5),
-        ("stump-tracks", -1000.0, 0.0),
-        ("hexagon-tracks", 1000.0, 1.0),
-        ("parkour", 105.0, 0.5),
-        ("toy", 50.0, 0.75),
+        (STUMP_TRACKS, 100.0, 0.5),
+        (STUMP_TRACKS, -1000.0, 0.0),
+        (HEXAGON_TRACKS, 1000.0, 1.0),
+        (PARKOUR, 105.0, 0.5),
+        (None, 50.0, 0.75),  # an environment without a profile: bounds [-100, 100]
         (None, -100.0, 0.0),
     ],
 )
-def test_reward_scaling_per_environment(env, ret, expected):
-    c = TeacherController("random", STUMPS, 0, env_name=env, scale_reward=True)
+def test_reward_scaling_per_environment(profile, ret, expected):
+    c = TeacherController("random", STUMPS, 0, profile=profile, scale_reward=True)
     seen = []
     c.teacher.episodic_update = lambda task, reward, success=False: seen.append(reward)
     task = c.sample_task()
     c.record_episode(task, ret, 10, False)
     assert seen == [pytest.approx(expected)]
-    assert c._records["train_returns"] == [ret]  # the raw return is what is recorded
+    # the raw return is what is recorded
+    assert c.state_dict()["records"]["train_returns"].tolist() == [ret]
+
+
+@pytest.mark.parametrize("name", envs.ENV_NAMES)
+def test_every_environment_declares_its_curriculum_profile(name, tmp_path):
+    env = envs.make(name)
+    try:
+        profile = env.unwrapped.curriculum_profile
+        space = env.unwrapped.task_space
+    finally:
+        env.close()
+    assert isinstance(profile, CurriculumProfile) and profile.name == name
+    assert profile.success_return == 230.0 and profile.adr_reward_thresholds == (0.0, 180.0)
+    c = TeacherController("random", space, 0, profile=profile)
+    c.dump(tmp_path / "dump")
+    assert json.loads((tmp_path / "dump.json").read_text())["env_name"] == name
+
+
+def test_curriculum_profiles_reject_bad_facts():
+    for bad in ((1.0, 1.0), (0.0, float("nan")), (0.0,), "wide"):
+        with pytest.raises(ValueError, match="reward_bounds"):
+            CurriculumProfile(reward_bounds=bad)
+    with pytest.raises(ValueError, match="adr_reward_thresholds"):
+        CurriculumProfile(adr_reward_thresholds=(180.0, 0.0))
+    with pytest.raises(ValueError, match="success_return"):
+        CurriculumProfile(success_return=True)
+    with pytest.raises(ValueError, match="test_sets"):
+        CurriculumProfile(test_sets={"walking": [[0.0]]})
+    with pytest.raises(ValueError, match="profile"):
+        TeacherController("random", STUMPS, 0, profile="stump-tracks")
 
 
 def test_custom_reward_bounds_and_unscaled_default():
@@ -112,9 +148,9 @@ def test_custom_reward_bounds_and_unscaled_default():
 
 
 def test_adr_thresholds_follow_reward_scaling():
-    c = TeacherController("adr", STUMPS, 0, env_name="stump-tracks", scale_reward=True)
+    c = TeacherController("adr", STUMPS, 0, profile=STUMP_TRACKS, scale_reward=True)
     assert (c.teacher.min_reward_thr, c.teacher.max_reward_thr) == pytest.approx((0.3, 0.66))
-    c = TeacherController("adr", STUMPS, 0, env_name="stump-tracks")
+    c = TeacherController("adr", STUMPS, 0, profile=STUMP_TRACKS)
     assert (c.teacher.min_reward_thr, c.teacher.max_reward_thr) == (0.0, 180.0)
 
 
@@ -227,46 +263,42 @@ def test_shuffled_controller_round_trips_tasks_to_the_teacher():
 # ---------------------------------------------------------------------- expert knowledge
 def test_expert_knowledge_table():
     space = TaskSpace.coerce({"stump_height": [-3.0, 3.0], "obstacle_spacing": [0.0, 6.0]})
-    high = expert_knowledge("stump-tracks", space, "high")
-    dist = initial_dist("stump-tracks", space)
+    high = expert_knowledge(STUMP_TRACKS, space, "high")
+    dist = STUMP_TRACKS.initial_distribution(space)
     np.testing.assert_allclose(dist["mean"], [0.0, 6.0])
     np.testing.assert_allclose(dist["variance"], np.diag([0.6**2, 0.6**2]))
     for name in ("alp-gmm", "covar-gmm", "adr", "self-paced", "goal-gan"):
         assert high[name]["initial_dist"] is not None, name
     for name in ("random", "riac", "setter-solver", "oracle", "lessons"):
         assert "initial_dist" not in high[name]
-    assert expert_knowledge("stump-tracks", space, "no") == expert_knowledge(
-        "stump-tracks", space, "low"
+    assert expert_knowledge(STUMP_TRACKS, space, "no") == expert_knowledge(
+        STUMP_TRACKS, space, "low"
     )
-    low = expert_knowledge("stump-tracks", space, "low")
+    low = expert_knowledge(STUMP_TRACKS, space, "low")
     assert all("initial_dist" not in kw for kw in low.values())
     assert low["adr"] == {"min_reward_thr": 0.0, "max_reward_thr": 180.0}
-    assert expert_knowledge("parkour", space, "high") == low  # no prior for Parkour
+    assert expert_knowledge(PARKOUR, space, "high") == low  # no prior for Parkour
+    assert expert_knowledge(None, space, "high") == low  # nor for an env without a profile
     np.testing.assert_allclose(
-        initial_dist("stump-tracks", {"stump_height": [1, 3], "obstacle_spacing": [0, 6]})["mean"],
+        STUMP_TRACKS.initial_distribution({"stump_height": [1, 3], "obstacle_spacing": [0, 6]})[
+            "mean"
+        ],
         [1, 6],
     )
-    hexa = initial_dist("acl3d/HexagonTracks-v0", {"poly_shape": [0.0, 4.0, 12]})
+    hexa = HEXAGON_TRACKS.initial_distribution({"poly_shape": [0.0, 4.0, 12]})
     np.testing.assert_allclose(hexa["mean"], np.zeros(12))
     np.testing.assert_allclose(np.diag(hexa["variance"]), np.full(12, 0.01))
     with pytest.raises(ValueError, match="expert_knowledge level"):
-        expert_knowledge("parkour", space, "original")
+        expert_knowledge(PARKOUR, space, "original")
 
 
 def test_expert_knowledge_kwargs_are_accepted_by_every_teacher():
     space = TaskSpace.coerce(STUMPS)
     for level in ("no", "low", "high"):
-        for name, kwargs in expert_knowledge("stump-tracks", space, level).items():
+        for name, kwargs in expert_knowledge(STUMP_TRACKS, space, level).items():
             assert name in TEACHERS
             params = inspect.signature(teacher_class(name).__init__).parameters
             assert set(kwargs) <= set(params), (name, set(kwargs) - set(params))
-
-
-def test_canonical_env_names():
-    assert canonical_env_name("acl3d/StumpTracks-v0") == "stump-tracks"
-    assert canonical_env_name("hexagon_tracks") == "hexagon-tracks"
-    assert canonical_env_name("Parkour-v1") == "parkour"
-    assert canonical_env_name("MyEnv") == "myenv"
 
 
 def test_high_knowledge_reaches_teachers_in_teacher_space():
@@ -274,14 +306,14 @@ def test_high_knowledge_reaches_teachers_in_teacher_space():
         "self-paced",
         STUMPS,
         5,
-        env_name="stump-tracks",
+        profile=STUMP_TRACKS,
         expert_knowledge="high",
         shuffle_dimensions=True,
     )
     mean, cov = c.teacher.mean_covariance()
     np.testing.assert_allclose(mean, c.shuffler.inverse(np.array([0.0, 6.0])))
     np.testing.assert_allclose(np.diag(cov), [0.3**2, 0.6**2])
-    c = TeacherController("adr", STUMPS, 5, env_name="stump-tracks", expert_knowledge="high")
+    c = TeacherController("adr", STUMPS, 5, profile=STUMP_TRACKS, expert_knowledge="high")
     np.testing.assert_allclose(c.sample_task(), [0.0, 6.0])  # ADR starts at the easy corner
 
 
@@ -298,7 +330,7 @@ def test_every_registered_teacher_runs_under_the_controller():
             STUMPS,
             1,
             teacher_params=params,
-            env_name="stump-tracks",
+            profile=STUMP_TRACKS,
             expert_knowledge="high",
             scale_reward=True,
         )
@@ -310,12 +342,30 @@ def test_every_registered_teacher_runs_under_the_controller():
 
 # ---------------------------------------------------------------------- test sets
 def test_default_test_set_is_the_stump_grid():
-    c = TeacherController("random", {"stump_height": [0.0, 9.0], "obstacle_spacing": [0.0, 6.0]}, 0)
+    space = {"stump_height": [0.0, 9.0], "obstacle_spacing": [0.0, 6.0]}
+    c = TeacherController("random", space, 0, profile=STUMP_TRACKS)
     tasks = c.test_tasks()
     assert tasks.shape == (100, 2) and tasks.dtype == np.float32 and c.nb_test_episodes == 100
     np.testing.assert_allclose(tasks[:10, 0], np.linspace(0, 3, 10), rtol=1e-6)  # first dim fastest
     np.testing.assert_allclose(tasks[::10, 1], np.linspace(0, 6, 10), rtol=1e-6)
     np.testing.assert_allclose(tasks[:10, 1], 0.0)
+    # the grid is the stump profile's: one stump dimension, or no profile, gives uniform tasks
+    one_dim = TeacherController("random", {"stump_height": [0.0, 9.0]}, 0, profile=STUMP_TRACKS)
+    np.testing.assert_allclose(one_dim.test_tasks(), ts.uniform({"stump_height": [0, 9]}, 100))
+    np.testing.assert_allclose(
+        TeacherController("random", space, 0).test_tasks(), ts.uniform(space)
+    )
+
+
+def test_named_test_sets_come_from_the_profile():
+    space = parkour_task_space()
+    for name in ("climbing", "climbing_test_set_v1"):
+        c = TeacherController("random", space, 0, profile=PARKOUR, test_set=name)
+        np.testing.assert_array_equal(
+            c.test_tasks(), parkour_test_sets.build("climbing", space).astype(np.float32)
+        )
+    with pytest.raises(ValueError, match="named set of this environment \\(none\\)"):
+        TeacherController("random", STUMPS, 0, profile=STUMP_TRACKS, test_set="walking")
 
 
 def test_default_test_set_elsewhere_is_seeded_uniform():

@@ -68,12 +68,13 @@ def run(args) -> int:
     probe = make_env(env_name, body, env_kwargs)  # also checks the env and body names
     try:
         space = probe.unwrapped.task_space
+        profile = getattr(probe.unwrapped, "curriculum_profile", None)
     finally:
         probe.close()
     if args.test_set is None and run_tasks is not None:
         tasks = run_tasks
     else:
-        tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes)
+        tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes, profile)
     names = space.flat_names() if space.dim == tasks.shape[1] else range(tasks.shape[1])
     result = evaluate_saved_model(
         model,

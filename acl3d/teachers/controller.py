@@ -2,7 +2,9 @@
 
 It builds the teacher with the expert knowledge of the chosen level, optionally shuffles the task
 dimensions, scales returns, owns the test set, and records every task and outcome for the run's
-dump and for exact resumption. Tasks exchanged with the caller are always in *environment* space;
+dump and for exact resumption. Everything it knows about the environment (reward bounds, ADR
+thresholds, initial distribution, named and default test sets) comes from the environment's
+`CurriculumProfile`; no environment is named here. Tasks exchanged with the caller are always in *environment* space;
 the teacher works in its own space, which differs only when dimensions are shuffled.
 
 Differences from TeachMyAgent's controller (why):
@@ -16,113 +18,27 @@ Differences from TeachMyAgent's controller (why):
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from acl3d import validation
+from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
 from acl3d.teachers import make
 from acl3d.teachers import test_sets as test_sets_mod
 from acl3d.teachers.base import load_state, save_state
-from acl3d.teachers.expert_knowledge import canonical_env_name
+from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
 from acl3d.teachers.expert_knowledge import expert_knowledge as expert_kwargs
 
-# Returns are mapped linearly from these bounds to [0, 1] (and clamped) when scale_reward is on.
-REWARD_BOUNDS = {
-    "stump-tracks": (-150.0, 350.0),
-    "hexagon-tracks": (-150.0, 350.0),
-    "parkour": (-150.0, 360.0),
-}
-DEFAULT_REWARD_BOUNDS = (-100.0, 100.0)
 NB_PERIODICAL_SAMPLES = 100
-_SNAP = 1e-6  # in interval widths: values this close to an interval's end belong to the next one
-
-
-class DimensionsShuffler:
-    """A per-dimension piecewise-translation bijection of the task box.
-
-    Each dimension is cut into `cuttings` equal intervals, which are permuted (one seeded
-    permutation per dimension); a value keeps its offset inside its interval. Intervals are
-    half-open [a, b) and the upper bound maps to itself, which makes the map a bijection of the
-    closed box. Values within 1e-6 interval widths of an interval's end are snapped to the next
-    interval's start, so float32 round trips never jump a whole interval. Inputs outside the
-    bounds are clipped; constant dimensions are left unchanged.
-    """
-
-    def __init__(self, low, high, cuttings: int = 4, seed: int | None = None):
-        self.low = np.asarray(low, dtype=np.float64).reshape(-1)
-        self.high = np.asarray(high, dtype=np.float64).reshape(-1)
-        if self.low.shape != self.high.shape or np.any(self.low > self.high):
-            raise ValueError(
-                f"DimensionsShuffler: low {self.low} and high {self.high} must have the same shape and low <= high"
-            )
-        if not isinstance(cuttings, (int, np.integer)) or cuttings < 1:
-            raise ValueError(f"cuttings must be an integer >= 1, got {cuttings!r}")
-        self.cuttings = int(cuttings)
-        rng = np.random.default_rng(seed)
-        self.perms = (
-            np.stack([rng.permutation(self.cuttings) for _ in range(len(self.low))])
-            if len(self.low)
-            else np.zeros((0, self.cuttings), dtype=np.int64)
-        )
-        self.inverse_perms = np.argsort(self.perms, axis=1)
-        self.width = (self.high - self.low) / self.cuttings
-
-    def _apply(self, x, table: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=np.float64)
-        if x.shape[-1:] != self.low.shape:
-            raise ValueError(
-                f"DimensionsShuffler: expected vectors of {len(self.low)} values, got shape {x.shape}"
-            )
-        active = self.width > 0
-        u = np.clip(
-            np.divide(x - self.low, self.width, out=np.zeros_like(x), where=active),
-            0,
-            self.cuttings,
-        )
-        i = np.floor(u)
-        frac = u - i
-        snap = frac > 1 - _SNAP
-        i, frac = np.where(snap, i + 1, i), np.where(snap, 0.0, frac)
-        top = i >= self.cuttings
-        idx = np.minimum(i, self.cuttings - 1).astype(np.int64)
-        mapped = np.take_along_axis(
-            np.broadcast_to(table, idx.shape[:-1] + table.shape), idx[..., None], -1
-        )[..., 0]
-        out_u = np.where(top, self.cuttings, mapped + frac)
-        return np.where(active, self.low + out_u * self.width, x)
-
-    def forward(self, x) -> np.ndarray:
-        """Teacher space -> environment space."""
-        return self._apply(x, self.perms)
-
-    def inverse(self, y) -> np.ndarray:
-        """Environment space -> teacher space."""
-        return self._apply(y, self.inverse_perms)
-
-
-def _finite(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a finite number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name}: expected a finite number, got {value!r}")
-    return v
 
 
 def _length(value) -> int:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, np.integer, float, np.floating))
-        or not float(value).is_integer()
-        or value < 0
-    ):
-        raise ValueError(f"length: expected a non-negative integer number of steps, got {value!r}")
-    return int(value)
+    return validation.integer("length", value, 0, allow_float=True)
 
 
 def _success(value) -> bool:
@@ -144,7 +60,7 @@ class TeacherController:
         *,
         teacher_params: dict | None = None,
         expert_knowledge: str = "low",
-        env_name: str | None = None,
+        profile: CurriculumProfile | None = None,
         scale_reward: bool = False,
         reward_bounds: tuple[float, float] | None = None,
         shuffle_dimensions: bool = False,
@@ -153,47 +69,35 @@ class TeacherController:
         keep_periodical_task_samples: int = 0,
     ):
         self.task_space = TaskSpace.coerce(task_space)
-        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-        self.seed = int(seed)
-        self.env_name = canonical_env_name(env_name)
+        self.seed = validation.integer("seed", seed, 0)
+        if profile is not None and not isinstance(profile, CurriculumProfile):
+            raise validation.fail("profile", profile, "a CurriculumProfile or None")
+        profile = profile if profile is not None else CurriculumProfile()
+        if reward_bounds is not None:
+            profile = dataclasses.replace(profile, reward_bounds=reward_bounds)
+        self.profile = profile
         self.teacher_name = teacher
         self.expert_knowledge = expert_knowledge
-        self.scale_reward = bool(scale_reward)
-        lb, ub = (
-            reward_bounds
-            if reward_bounds is not None
-            else REWARD_BOUNDS.get(self.env_name, DEFAULT_REWARD_BOUNDS)
+        self.scale_reward = validation.flag("scale_reward", scale_reward)
+        self.keep_periodical_task_samples = validation.count(
+            "keep_periodical_task_samples", keep_periodical_task_samples, minimum=0
         )
-        lb, ub = _finite("reward_bounds[0]", lb), _finite("reward_bounds[1]", ub)
-        if not lb < ub:
-            raise ValueError(f"reward_bounds must satisfy lower < upper, got ({lb}, {ub})")
-        self.reward_bounds = (lb, ub)
-        if (
-            not isinstance(keep_periodical_task_samples, (int, np.integer))
-            or keep_periodical_task_samples < 0
-        ):
-            raise ValueError(
-                f"keep_periodical_task_samples must be an integer >= 0 (steps; 0 = off), got {keep_periodical_task_samples!r}"
-            )
-        self.keep_periodical_task_samples = int(keep_periodical_task_samples)
-        if not isinstance(nb_test_episodes, (int, np.integer)) or nb_test_episodes < 1:
-            raise ValueError(f"nb_test_episodes must be an integer >= 1, got {nb_test_episodes!r}")
+        validation.count("nb_test_episodes", nb_test_episodes)
 
         low, high = self.task_space.low, self.task_space.high
         self.shuffler = (
             DimensionsShuffler(low, high, cuttings=4, seed=self.seed)
-            if shuffle_dimensions
+            if validation.flag("shuffle_dimensions", shuffle_dimensions)
             else None
         )
-        params = dict(expert_kwargs(env_name, self.task_space, expert_knowledge).get(teacher, {}))
+        params = dict(expert_kwargs(profile, self.task_space, expert_knowledge).get(teacher, {}))
         params.update(teacher_params or {})
         params = self._to_teacher_space(teacher, params)
         self.teacher = make(teacher, self.task_space, seed=self.seed, **params)
         self._step_stream = "stream" in inspect.signature(self.teacher.step_update).parameters
 
         self._test_tasks = test_sets_mod.resolve(
-            test_set, self.task_space, int(nb_test_episodes)
+            test_set, self.task_space, int(nb_test_episodes), profile
         ).astype(np.float32)
         self.nb_test_episodes = len(self._test_tasks)
         self._records: dict[str, list] = {k: [] for k in _RECORD_KEYS}
@@ -220,9 +124,12 @@ class TeacherController:
     def set_value_estimator(self, fn) -> None:
         self.teacher.set_value_estimator(fn)
 
+    @property
+    def reward_bounds(self) -> tuple[float, float]:
+        return self.profile.reward_bounds
+
     def scale(self, episode_return: float) -> float:
-        lb, ub = self.reward_bounds
-        return float(np.clip((episode_return - lb) / (ub - lb), 0.0, 1.0))
+        return self.profile.scale(episode_return)
 
     # ------------------------------------------------------------------ training
     def sample_task(self) -> np.ndarray:
@@ -241,7 +148,7 @@ class TeacherController:
         discounted return per worker)."""
         if "step_rewards" not in self.needs:
             return
-        reward = _finite("reward", reward)
+        reward = validation.real("reward", reward)
         if self._step_stream:
             self.teacher.step_update(state, action, reward, next_state, bool(done), stream=worker)
         else:
@@ -250,7 +157,7 @@ class TeacherController:
     def record_episode(self, env_task, episode_return, length, success, initial_obs=None) -> None:
         """A finished training episode on `env_task` (as returned by `sample_task`)."""
         env_task = self._check_env_task(env_task)
-        ret = _finite("episode_return", episode_return)
+        ret = validation.real("episode_return", episode_return)
         length = _length(length)
         success = _success(success)
         if initial_obs is not None:
@@ -299,7 +206,7 @@ class TeacherController:
     def record_test_episode(self, env_task, episode_return, length, success=False) -> None:
         env_task = self._check_env_task(env_task)
         ret, length, success = (
-            _finite("episode_return", episode_return),
+            validation.real("episode_return", episode_return),
             _length(length),
             _success(success),
         )
@@ -339,7 +246,7 @@ class TeacherController:
         tree = {
             "format": "acl3d-teacher-dump-1",
             "teacher": self.teacher_name,
-            "env_name": self.env_name,
+            "env_name": self.profile.name,
             "expert_knowledge": self.expert_knowledge,
             "names": self.task_space.flat_names(),
             "bounds": self.task_space.bounds_dict(),

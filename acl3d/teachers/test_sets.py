@@ -21,10 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
 
-# TeachMyAgent's Stump Tracks test set: this grid whatever the training bounds (reference §4.1).
-STUMP_GRID_RANGES = {"stump_height": (0.0, 3.0), "obstacle_spacing": (0.0, 6.0)}
 UNIFORM_SEED = 31
 
 
@@ -63,7 +62,7 @@ def grid(
     """A regular grid, first dimension varying fastest, floor(nb_tasks^(1/d')) points per varying
     dimension (d' = dimensions with min < max; constant ones keep their value).
 
-    `ranges` overrides the bounds of named 1-D parameters (the Stump Tracks set uses this)."""
+    `ranges` overrides the bounds of named parameters (a profile's `default_test_grid`)."""
     space = TaskSpace.coerce(task_space)
     low, high = space.low.copy(), space.high.copy()
     for name, (lo, hi) in (ranges or {}).items():
@@ -84,11 +83,13 @@ def uniform(task_space, nb_tasks: int = 100, seed: int = UNIFORM_SEED) -> np.nda
     return np.random.default_rng(seed).uniform(space.low, space.high, size=(nb_tasks, space.dim))
 
 
-def default(task_space, nb_tasks: int = 100) -> np.ndarray:
-    """TeachMyAgent's rule: the fixed Stump Tracks grid for the 2-D stump space, else uniform."""
+def default(task_space, nb_tasks: int = 100, profile: CurriculumProfile | None = None):
+    """TeachMyAgent's rule: the profile's fixed grid when the space has exactly its parameters
+    (the Stump Tracks set), else uniform."""
     space = TaskSpace.coerce(task_space)
-    if set(space.names) == set(STUMP_GRID_RANGES) and space.dim == 2:
-        return grid(space, nb_tasks, STUMP_GRID_RANGES)
+    ranges = profile.default_test_grid if profile is not None else None
+    if ranges and set(space.names) == set(ranges):
+        return grid(space, nb_tasks, ranges)
     return uniform(space, nb_tasks)
 
 
@@ -163,24 +164,25 @@ def save(path, tasks, task_space) -> None:
         raise ValueError(f"test set file {str(path)!r}: expected a .json or .csv suffix")
 
 
-def resolve(test_set, task_space, nb_tasks: int = 100) -> np.ndarray:
-    """None (default rule), "grid", "uniform", a named set ("walking", "climbing", "swimming"),
-    a .json/.csv path, or an array -> validated tasks."""
+def resolve(
+    test_set, task_space, nb_tasks: int = 100, profile: CurriculumProfile | None = None
+) -> np.ndarray:
+    """None (the default rule), "grid", "uniform", a set named by the environment's profile
+    ("walking", ...), a .json/.csv path, or an array -> validated tasks."""
     space = TaskSpace.coerce(task_space)
+    named = profile.test_sets if profile is not None else {}
     if test_set is None:
-        return default(space, nb_tasks)
+        return default(space, nb_tasks, profile)
     if isinstance(test_set, str) and test_set == "grid":
         return grid(space, nb_tasks)
     if isinstance(test_set, str) and test_set == "uniform":
         return uniform(space, nb_tasks)
+    if isinstance(test_set, str) and test_set in named:
+        return validate(named[test_set](space, nb_tasks), space)
     if isinstance(test_set, str) and not Path(test_set).suffix:
-        from acl3d.terrain import parkour_test_sets  # named sets (pure numpy, no MuJoCo)
-
-        if parkour_test_sets.ALIASES.get(test_set, test_set) in parkour_test_sets.SEEDS:
-            return parkour_test_sets.build(test_set, space, nb_tasks)
         raise ValueError(
             f"test set {test_set!r}: not a file (.json/.csv), 'grid', 'uniform' or a named set "
-            f"({', '.join(parkour_test_sets.SEEDS)})"
+            f"of this environment ({', '.join(named) or 'none'})"
         )
     if isinstance(test_set, (str, Path)):
         return load(test_set, space)

@@ -12,8 +12,9 @@ training space, so "% mastered" measures what the curriculum could have taught:
 * swimming: input uniform; water 1; no creepers; scale 10 (the original mixes 10 and 20).
 
 Each set is drawn from `numpy.random.default_rng(seed)` with the seed below, so it is the same
-on every machine; `save()` writes it as JSON/CSV (acl3d.teachers.test_sets formats) and
-`resolve()` accepts a name, a file or an array.
+on every machine. The Parkour environment's curriculum profile (acl3d.envs.profiles) offers
+them by name, so `test_set="walking"` (or "walking_test_set_v1") selects one for training and
+evaluation, and `acl3d.teachers.test_sets.save` writes one as JSON or CSV.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from __future__ import annotations
 import numpy as np
 
 from acl3d.task_space import TaskSpace
-from acl3d.teachers import test_sets
 from acl3d.terrain.parkour import parkour_task_space
 
 SEEDS = {"walking": 1001, "climbing": 1002, "swimming": 1003}
@@ -60,16 +60,3 @@ def build(name: str, task_space: TaskSpace | None = None, nb_tasks: int = NB_TAS
         tasks[:, col["creepers_spacing"]] = 0.0
     tasks[:, col["creepers_width"]] = width
     return np.clip(tasks, space.low, space.high)
-
-
-def resolve(test_set, task_space: TaskSpace, nb_tasks: int = NB_TASKS) -> np.ndarray:
-    """A Parkour set name, or anything `acl3d.teachers.test_sets.resolve` accepts."""
-    if isinstance(test_set, str) and ALIASES.get(test_set, test_set) in SEEDS:
-        return build(test_set, task_space, nb_tasks)
-    return test_sets.resolve(test_set, task_space, nb_tasks)
-
-
-def save(path, name: str, task_space: TaskSpace | None = None) -> None:
-    """Write a named set as .json or .csv (columns named after the task dimensions)."""
-    space = task_space or parkour_task_space("medium")
-    test_sets.save(path, build(name, space), space)
