@@ -1,0 +1,184 @@
+"""Where attempts run: Ray tasks (local instance or a cluster) or local child processes.
+
+Both executors take jobs one at a time (`submit`) and report finished ones (`wait`); the
+campaign loop above them owns queueing and retries, so both behave the same. A worker that
+dies without a Python traceback (killed, out of memory, segfault) is reported as a failure
+with the executor's explanation.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import sys
+from dataclasses import dataclass
+
+EXECUTORS = ("ray", "local")
+_SHUTDOWN_GRACE_S = 30.0
+
+
+@dataclass
+class Job:
+    name: str
+    run_dir: str
+    options: dict
+    cpus: int
+
+
+@dataclass
+class Outcome:
+    ok: bool
+    error: str | None = None
+    traceback: str | None = None  # set when the worker could not record one itself
+    retry: bool = True
+
+
+def _check_parallel(max_parallel) -> None:
+    if max_parallel is not None and (
+        isinstance(max_parallel, bool) or not isinstance(max_parallel, int) or max_parallel < 1
+    ):
+        raise ValueError(f"max_parallel must be an integer >= 1, got {max_parallel!r}")
+
+
+def make_executor(kind: str, max_parallel: int | None, cpus: int, address: str | None = None):
+    _check_parallel(max_parallel)
+    if kind == "ray":
+        return RayExecutor(max_parallel, cpus, address)
+    if kind == "local":
+        if address is not None:
+            raise ValueError("address applies to the ray executor only")
+        return LocalExecutor(max_parallel, cpus)
+    raise ValueError(f"executor {kind!r} unknown; valid: {', '.join(EXECUTORS)}")
+
+
+# ---------------------------------------------------------------------- local processes
+def _child(run_dir: str, options: dict, cpus: int) -> None:
+    from acl3d.campaign.attempt import run_attempt
+
+    result = run_attempt(run_dir, options, cpus)
+    sys.exit(0 if result["ok"] else 3 if result.get("retry", True) else 4)
+
+
+class LocalExecutor:
+    """Each attempt in a fresh `spawn` child process, at most `max_parallel` at a time."""
+
+    def __init__(self, max_parallel: int | None, cpus: int):
+        self.capacity = max_parallel or max(1, (os.cpu_count() or 1) // cpus)
+        self._ctx = mp.get_context("spawn")
+        self._running: dict[str, tuple[Job, mp.Process]] = {}
+
+    def free_slots(self) -> int:
+        return self.capacity - len(self._running)
+
+    def submit(self, job: Job) -> None:
+        proc = self._ctx.Process(
+            target=_child, args=(job.run_dir, job.options, job.cpus), name=f"acl3d-{job.name}"
+        )
+        proc.start()
+        self._running[job.name] = (job, proc)
+
+    def wait(self, timeout: float) -> list[tuple[Job, Outcome]]:
+        from multiprocessing.connection import wait
+
+        procs = [p.sentinel for _, p in self._running.values()]
+        if procs:
+            wait(procs, timeout=timeout)
+        done = []
+        for name, (job, proc) in list(self._running.items()):
+            if proc.exitcode is None:
+                continue
+            proc.join()
+            del self._running[name]
+            if proc.exitcode == 0:
+                done.append((job, Outcome(True)))
+            elif proc.exitcode in (3, 4):
+                why = "training failed (traceback in the run's failures/)"
+                done.append((job, Outcome(False, why, retry=proc.exitcode == 3)))
+            else:
+                why = f"worker process exited with code {proc.exitcode}"
+                if proc.exitcode < 0:
+                    why = f"worker process killed by signal {-proc.exitcode}"
+                done.append((job, Outcome(False, why, traceback=why + "\n")))
+        return done
+
+    def shutdown(self, interrupt: bool) -> None:
+        """Stop running attempts like Ctrl-C (train marks them interrupted), then reap them."""
+        if interrupt:
+            for _, proc in self._running.values():
+                if proc.exitcode is None:
+                    os.kill(proc.pid, signal.SIGINT)
+        for _, proc in self._running.values():
+            proc.join(_SHUTDOWN_GRACE_S)
+            if proc.exitcode is None:
+                proc.kill()
+                proc.join()
+        self._running.clear()
+
+
+# ---------------------------------------------------------------------- Ray
+def _ray_attempt(run_dir: str, options: dict, cpus: int) -> dict:
+    from acl3d.campaign.attempt import run_attempt
+
+    return run_attempt(run_dir, options, cpus)
+
+
+class RayExecutor:
+    """One Ray task per attempt, declaring `cpus` CPUs; a local Ray instance unless `address`."""
+
+    def __init__(self, max_parallel: int | None, cpus: int, address: str | None):
+        import ray
+
+        self._ray = ray
+        self._owns = not ray.is_initialized()
+        if self._owns:
+            kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level="WARNING")
+            if address:
+                ray.init(address=address, **kwargs)
+            else:  # a local instance sized to the campaign, so runs never oversubscribe it
+                local = (max_parallel or max(1, (os.cpu_count() or 1) // cpus)) * cpus
+                ray.init(num_cpus=local, **kwargs)
+        total = int(ray.cluster_resources().get("CPU", cpus))
+        self.capacity = max_parallel or max(1, total // cpus)
+        self._task = ray.remote(_ray_attempt)
+        self._running: dict = {}  # ObjectRef -> Job
+
+    def free_slots(self) -> int:
+        return self.capacity - len(self._running)
+
+    def submit(self, job: Job) -> None:
+        ref = self._task.options(num_cpus=job.cpus, max_retries=0, name=job.name).remote(
+            job.run_dir, job.options, job.cpus
+        )
+        self._running[ref] = job
+
+    def wait(self, timeout: float) -> list[tuple[Job, Outcome]]:
+        ray = self._ray
+        refs = list(self._running)
+        if not refs:
+            return []
+        ready, _ = ray.wait(refs, num_returns=len(refs), timeout=timeout)
+        done = []
+        for ref in ready:
+            job = self._running.pop(ref)
+            try:
+                result = ray.get(ref)
+            except Exception as exc:  # the worker died or the task raised outside train
+                text = f"{type(exc).__name__}: {exc}"
+                done.append((job, Outcome(False, text.splitlines()[0], traceback=text + "\n")))
+                continue
+            outcome = Outcome(bool(result["ok"]), result.get("error"))
+            outcome.retry = result.get("retry", True)
+            done.append((job, outcome))
+        return done
+
+    def shutdown(self, interrupt: bool) -> None:
+        ray = self._ray
+        if interrupt:
+            for ref in self._running:
+                ray.cancel(ref)  # a KeyboardInterrupt inside the task: train marks it
+            if self._running:
+                ray.wait(list(self._running), num_returns=len(self._running), timeout=30)
+        self._running.clear()
+        if self._owns:
+            ray.shutdown()

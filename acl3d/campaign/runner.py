@@ -1,0 +1,188 @@
+"""Running a campaign: the campaign directory, its lock, and the submit / retry loop.
+
+    DIR/campaign.yaml     the (scaled) spec, the options it was run with, every run's labels and
+                          training options: what `acl3d analyze` and `campaign status` read
+    DIR/runs/NAME/        one ordinary run directory per run (+ campaign.log, failures/)
+    DIR/.lock             pid of the campaign process using the directory
+
+Running the same campaign again into the same directory continues it: finished runs are
+skipped, runs with a checkpoint resume from it, the rest start afresh. Each run gets
+`1 + retries` attempts per invocation.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import threading
+from collections import deque
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from acl3d.campaign.executors import Job, make_executor
+from acl3d.campaign.progress import ProgressView
+from acl3d.campaign.run_state import read_state, record_failure
+from acl3d.campaign.spec import CampaignSpec, RunSpec
+
+MANIFEST = "campaign.yaml"
+
+
+@dataclass
+class CampaignResult:
+    finished: list[str]
+    failed: list[str]
+
+
+class CampaignDir:
+    def __init__(self, path):
+        self.path = Path(path).resolve()
+
+    @property
+    def manifest(self) -> Path:
+        return self.path / MANIFEST
+
+    def run_dir(self, name: str) -> Path:
+        return self.path / "runs" / name
+
+    def read(self) -> dict:
+        if not self.manifest.exists():
+            raise ValueError(f"{str(self.path)!r} is not a campaign directory (no {MANIFEST})")
+        return yaml.safe_load(self.manifest.read_text())
+
+    def prepare(self, spec: CampaignSpec, runs: list[RunSpec], invocation: dict) -> None:
+        """Write the manifest, or check that the directory holds this very campaign."""
+        doc = {
+            "spec": spec.to_dict(),
+            "invocation": invocation,
+            "runs": [{"name": r.name, "labels": r.labels, "options": r.options} for r in runs],
+        }
+        if self.manifest.exists():
+            old = self.read()
+            if _comparable(old["runs"]) != _comparable(doc["runs"]):
+                raise ValueError(
+                    f"{str(self.path)!r} holds campaign {old['spec']['name']!r} with other runs "
+                    "or options; continue it with the same spec and options, or choose another --out"
+                )
+            return
+        self.path.mkdir(parents=True, exist_ok=True)
+        tmp = self.manifest.with_name(MANIFEST + ".tmp")
+        tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+        os.replace(tmp, self.manifest)
+
+    @contextmanager
+    def lock(self):
+        path = self.path / ".lock"
+        if path.exists():
+            holder = json.loads(path.read_text() or "{}")
+            if holder.get("host") == socket.gethostname() and _alive(holder.get("pid")):
+                raise ValueError(
+                    f"campaign directory {str(self.path)!r} is in use by pid {holder['pid']}"
+                )
+        path.write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
+        try:
+            yield
+        finally:
+            path.unlink(missing_ok=True)
+
+
+def _comparable(runs: list[dict]) -> list:
+    return sorted((r["name"], json.dumps(r["options"], sort_keys=True)) for r in runs)
+
+
+def _alive(pid) -> bool:
+    if not isinstance(pid, int):
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def cpus_of(options: dict) -> int:
+    """CPUs a run declares: its torch threads (1 unless the spec or --set says otherwise)."""
+    return int(options.get("torch_threads") or 1)
+
+
+def run_campaign(
+    spec: CampaignSpec,
+    out,
+    executor: str = "ray",
+    address: str | None = None,
+    max_parallel: int | None = None,
+    retries: int = 2,
+    invocation: dict | None = None,
+    live: bool | None = None,
+) -> CampaignResult:
+    """Run (or continue) every run of `spec` under `out`; returns the finished and failed names."""
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+    runs = spec.expand()
+    cpus = {cpus_of(r.options) for r in runs}
+    if len(cpus) != 1:
+        raise ValueError(f"every run of a campaign must use the same torch_threads, got {cpus}")
+    camp = CampaignDir(out)
+    camp.prepare(spec, runs, invocation or {})
+    with camp.lock(), _sigterm_as_interrupt():
+        todo = deque(
+            r for r in runs if not read_state(camp.run_dir(r.name), r.options["steps"]).finished
+        )
+        pool = make_executor(executor, max_parallel, cpus.pop(), address)
+        view = ProgressView(camp, runs, live=live)
+        attempts: dict[str, int] = {}
+        failed: list[str] = []
+        try:
+            while todo or pool.free_slots() < pool.capacity:
+                while todo and pool.free_slots() > 0:
+                    run = todo.popleft()
+                    attempts[run.name] = attempts.get(run.name, 0) + 1
+                    pool.submit(
+                        Job(
+                            run.name, str(camp.run_dir(run.name)), run.options, cpus_of(run.options)
+                        )
+                    )
+                for job, outcome in pool.wait(timeout=1.0):
+                    if outcome.ok:
+                        continue
+                    if outcome.traceback:
+                        record_failure(Path(job.run_dir), outcome.traceback)
+                    if outcome.retry and attempts[job.name] <= retries:
+                        todo.append(next(r for r in runs if r.name == job.name))
+                    else:
+                        failed.append(job.name)
+                    view.note(f"{job.name}: attempt {attempts[job.name]} failed: {outcome.error}")
+                view.refresh()
+        except KeyboardInterrupt:
+            pool.shutdown(interrupt=True)
+            view.close()
+            raise
+        pool.shutdown(interrupt=False)
+        view.close()
+    finished = [
+        r.name for r in runs if read_state(camp.run_dir(r.name), r.options["steps"]).finished
+    ]
+    return CampaignResult(finished=finished, failed=failed)
+
+
+@contextmanager
+def _sigterm_as_interrupt():
+    """`kill PID` stops a campaign like Ctrl-C: running attempts end with their status written."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

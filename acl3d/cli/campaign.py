@@ -1,0 +1,118 @@
+"""`acl3d campaign list | show SPEC | run SPEC --out DIR | status DIR`: benchmark campaigns."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sub.add_parser("list", help="list the built-in campaign specs")
+    show = sub.add_parser("show", help="print a spec's runs (after --budget/--seeds/--set)")
+    show.add_argument("spec", help="built-in spec name or a YAML file")
+    _scaling_options(show)
+    run = sub.add_parser("run", help="run a campaign (or continue it in the same --out)")
+    run.add_argument("spec", help="built-in spec name or a YAML file")
+    run.add_argument("--out", required=True, help="campaign directory")
+    _scaling_options(run)
+    run.add_argument("--executor", choices=("ray", "local"), default="ray")
+    run.add_argument("--address", help="Ray cluster to join (default: a local Ray instance)")
+    run.add_argument("--max-parallel", type=int, metavar="K", help="runs at the same time")
+    run.add_argument(
+        "--retries", type=int, default=2, help="extra attempts of a failed run (default 2)"
+    )
+    status = sub.add_parser("status", help="progress of a campaign directory")
+    status.add_argument("dir", help="campaign directory")
+
+
+def _scaling_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--budget", type=float, default=1.0, help="multiply every step count by F")
+    p.add_argument("--seeds", type=int, help="use seeds 0..N-1 instead of the spec's")
+    p.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        metavar="KEY=VALUE",
+        help="training option for every run (repeatable), e.g. --set steps=4096",
+    )
+
+
+def _spec(args):
+    from acl3d.campaign.spec import load_spec, parse_set
+
+    return load_spec(args.spec).scaled(args.budget, args.seeds, parse_set(args.sets))
+
+
+def run(args) -> int:
+    return {"list": _list, "show": _show, "run": _run, "status": _status}[args.action](args)
+
+
+def _list(args) -> int:
+    from acl3d.campaign.spec import builtin_names, load_spec
+
+    for name in builtin_names():
+        spec = load_spec(name)
+        print(f"{name:12s} {len(spec.expand()):5d} runs  {spec.description}")
+    return 0
+
+
+def _show(args) -> int:
+    import yaml
+
+    spec = _spec(args)
+    runs = spec.expand()
+    print(yaml.safe_dump({"base": spec.base, "grid": spec.grid}, sort_keys=False).rstrip())
+    print(f"# {len(runs)} runs, {sum(r.options.get('steps', 0) for r in runs):,} steps in all")
+    for r in runs:
+        extra = {k: v for k, v in r.options.items() if spec.base.get(k) != v}
+        print(f"{r.name}  {extra}")
+    return 0
+
+
+def _run(args) -> int:
+    from acl3d.campaign.runner import run_campaign
+
+    spec = _spec(args)
+    invocation = {
+        "command": sys.argv,
+        "budget": args.budget,
+        "seeds": args.seeds,
+        "set": args.sets or [],
+        "executor": args.executor,
+    }
+    try:
+        result = run_campaign(
+            spec,
+            args.out,
+            executor=args.executor,
+            address=args.address,
+            max_parallel=args.max_parallel,
+            retries=args.retries,
+            invocation=invocation,
+        )
+    except KeyboardInterrupt:
+        print(f"acl3d campaign: interrupted; continue with the same command (--out {args.out})")
+        return 130
+    print(
+        f"campaign {spec.name}: {len(result.finished)} runs finished, {len(result.failed)} failed"
+        + (f" ({', '.join(result.failed)})" if result.failed else "")
+    )
+    return 1 if result.failed else 0
+
+
+def _status(args) -> int:
+    from rich.console import Console
+
+    from acl3d.campaign.progress import read_states, status_table, summarize
+    from acl3d.campaign.runner import CampaignDir
+    from acl3d.campaign.spec import RunSpec
+
+    camp = CampaignDir(args.dir)
+    doc = camp.read()
+    runs = [RunSpec(r["name"], r["labels"], r["options"]) for r in doc["runs"]]
+    states = read_states(camp, runs)
+    counts = summarize(states)
+    title = f"campaign {doc['spec']['name']}: " + ", ".join(f"{v} {k}" for k, v in counts.items())
+    Console().print(status_table(states, title=title))
+    return 0
