@@ -133,6 +133,12 @@ def test_bad_options_raise():
         make(input_space="hard")
     with pytest.raises(ValueError, match="lidars_type='side'"):
         make(lidars_type="side")
+    with pytest.raises(ValueError, match="end_on_death='False'; valid: True or False"):
+        make(end_on_death="False")
+    with pytest.raises(ValueError, match="movable_creepers=1"):
+        make(movable_creepers=1)
+    with pytest.raises(ValueError, match=r"water_clip=inf; valid: a finite number >= 0"):
+        make(water_clip=float("inf"))
 
 
 # ---------------------------------------------------------------------------- environment API
