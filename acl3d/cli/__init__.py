@@ -13,6 +13,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("acl3d.cli.report", "write plots and a video for a run directory"),
     "render": ("acl3d.cli.render", "render rollouts of a track to mp4/gif"),
     "toy": ("acl3d.cli.toy", "run a teacher on teachDeepRL's toy environment"),
+    "campaign": ("acl3d.cli.campaign", "benchmark campaigns: many runs on Ray or local processes"),
+    "analyze": ("acl3d.cli.analyze", "statistics, figures and a report for a campaign's runs"),
 }
 
 
