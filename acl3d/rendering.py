@@ -1,27 +1,50 @@
 """Headless offscreen rendering: choose the OpenGL backend before MuJoCo loads, render fast.
 
 MuJoCo reads MUJOCO_GL once, when it is imported. `select_gl_backend()` runs on `import acl3d`
-and, if the user has not chosen, picks EGL, then OSMesa, from the libraries present. Renderer
-creation failures are turned into a message saying what was tried and what to install.
+and, if the user has not chosen, picks EGL, then OSMesa, from the libraries present. Every
+failure of the backend (at `import mujoco`, which loads it, or when a renderer is created) is
+turned into a RuntimeError naming the backend tried and the Debian package to install.
 """
 
 from __future__ import annotations
 
 import atexit
+import ctypes
 import ctypes.util
+import importlib.abc
+import importlib.util
 import os
 import sys
 import weakref
 
-_BACKEND_LIBRARIES = {
-    "egl": ("EGL", "libegl1 libgl1 (Mesa: libegl-mesa0)"),
+# backend -> (shared library, Debian package(s) that provide it)
+BACKEND_LIBRARIES = {
+    "egl": ("EGL", "libegl1 libegl-mesa0"),
     "osmesa": ("OSMesa", "libosmesa6"),
 }
 _chosen: dict[str, object] = {"backend": None, "tried": [], "note": ""}
 
 
+def library_available(backend: str) -> bool:
+    """Whether the shared library of `backend` (egl, osmesa) can be loaded, as PyOpenGL loads it."""
+    lib = BACKEND_LIBRARIES[backend][0]
+    if ctypes.util.find_library(lib):
+        return True
+    for name in [f"lib{lib}.so"] + [f"lib{lib}.so.{i}" for i in range(9, -1, -1)]:
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
 def select_gl_backend() -> str | None:
     """Set MUJOCO_GL to egl or osmesa when the user has not set it and no display exists."""
+    if "mujoco" not in sys.modules and not any(
+        isinstance(f, _MujocoImportGuard) for f in sys.meta_path
+    ):
+        sys.meta_path.insert(0, _MujocoImportGuard())
     if "MUJOCO_GL" in os.environ:
         _chosen.update(backend=os.environ["MUJOCO_GL"], note="MUJOCO_GL was set by the user")
         return os.environ["MUJOCO_GL"]
@@ -33,9 +56,9 @@ def select_gl_backend() -> str | None:
         and not os.environ.get("DISPLAY")
         and not os.environ.get("WAYLAND_DISPLAY")
     ):
-        for backend, (lib, _) in _BACKEND_LIBRARIES.items():
+        for backend in BACKEND_LIBRARIES:
             _chosen["tried"].append(backend)
-            if ctypes.util.find_library(lib):
+            if library_available(backend):
                 os.environ["MUJOCO_GL"] = backend
                 if backend == "osmesa":
                     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
@@ -48,17 +71,52 @@ def select_gl_backend() -> str | None:
 
 
 def gl_error_message(exc: BaseException) -> str:
-    backend = os.environ.get("MUJOCO_GL", "(unset: MuJoCo's default, which needs a display)")
+    backend = os.environ.get("MUJOCO_GL")
     tried = ", ".join(_chosen["tried"]) or "none"
-    hints = "; ".join(
-        f"MUJOCO_GL={b} needs the Debian package(s) {pkgs}"
-        for b, (_, pkgs) in _BACKEND_LIBRARIES.items()
+    if backend in BACKEND_LIBRARIES:
+        lib, pkgs = BACKEND_LIBRARIES[backend]
+        need = f"MUJOCO_GL={backend} needs lib{lib} (Debian: apt-get install {pkgs})"
+    else:
+        need = f"MUJOCO_GL={backend or '(unset)'}: MuJoCo's default (GLFW) needs a display"
+    others = "; ".join(
+        f"MUJOCO_GL={b} needs apt-get install {pkgs}"
+        for b, (_, pkgs) in BACKEND_LIBRARIES.items()
+        if b != backend
     )
     return (
-        f"offscreen rendering failed with MUJOCO_GL={backend} ({type(exc).__name__}: {exc}). "
-        f"Backends tried automatically: {tried} ({_chosen['note']}). {hints}. "
-        "Set MUJOCO_GL before importing mujoco or acl3d, e.g. `MUJOCO_GL=osmesa python ...`."
+        f"OpenGL rendering failed with MUJOCO_GL={backend or '(unset)'} "
+        f"({type(exc).__name__}: {exc}). {need}. Backends tried automatically: {tried} "
+        f"({_chosen['note']}). Alternatives: {others}. Set MUJOCO_GL before importing mujoco "
+        "or acl3d, e.g. `MUJOCO_GL=egl python ...`, or unset it to let acl3d choose."
     )
+
+
+class _MujocoImportGuard(importlib.abc.MetaPathFinder):
+    """Makes a failing `import mujoco` (it loads the GL backend) raise gl_error_message."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        if fullname != "mujoco":
+            return None
+        sys.meta_path.remove(self)  # one use: find the real spec without ourselves
+        spec = importlib.util.find_spec("mujoco")
+        if spec is not None and spec.loader is not None:
+            spec.loader = _GuardedLoader(spec.loader)
+        return spec
+
+
+class _GuardedLoader(importlib.abc.Loader):
+    def __init__(self, loader):
+        self._loader = loader
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module):
+        module.__spec__.loader = module.__loader__ = self._loader  # MuJoCo's own, from now on
+        try:
+            self._loader.exec_module(module)
+        except Exception as exc:
+            raise RuntimeError(gl_error_message(exc)) from exc
 
 
 _live_renderers: weakref.WeakSet = weakref.WeakSet()

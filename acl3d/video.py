@@ -1,74 +1,121 @@
-"""Rollout videos: run a policy in an rgb_array env and stream frames to an mp4 or gif."""
+"""Frame files: an mp4 (H.264), a looping gif, or a PNG strip (a few frames of each episode)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
-from tqdm import tqdm
 
-Policy = Callable[[np.ndarray], np.ndarray]
-VIDEO_FORMATS = (".mp4", ".gif")
+FORMATS = ("mp4", "gif", "png")
 
 
-def video_writer(path: str | Path, fps: int):
-    """An imageio writer for .mp4 (ffmpeg, H.264) or .gif (looping)."""
-    path = Path(path)
-    if path.suffix.lower() not in VIDEO_FORMATS:
-        raise ValueError(f"video path {str(path)!r}: the extension must be one of {VIDEO_FORMATS}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix.lower() == ".mp4":
-        return imageio.get_writer(path, fps=fps, codec="libx264", quality=7, macro_block_size=8)
-    return imageio.get_writer(path, mode="I", duration=1000.0 / fps, loop=0)
+def output_format(path: str | Path, fmt: str | None = None) -> str:
+    """The format of `path`: `fmt` when given (it must match a known extension), else the suffix."""
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if fmt is not None:
+        if fmt not in FORMATS:
+            raise ValueError(f"format={fmt!r}; valid: {', '.join(FORMATS)}")
+        if suffix in FORMATS and suffix != fmt:
+            raise ValueError(f"format={fmt!r} contradicts the extension of {str(path)!r}")
+        return fmt
+    if suffix not in FORMATS:
+        raise ValueError(
+            f"output path {str(path)!r}: the extension must be one of "
+            f"{', '.join('.' + f for f in FORMATS)} (or pass a format)"
+        )
+    return suffix
 
 
-def record_rollouts(
-    env,
-    policy: Policy,
-    out: str | Path,
-    tasks: Sequence | None = None,
-    episodes: int = 1,
-    seed: int | None = 0,
-    max_steps: int = 2000,
-    every: int = 1,
-    fps: int | None = None,
-    progress: bool = True,
-) -> list[dict]:
-    """Play `episodes` episodes (one per task if `tasks` is given) and write every `every`-th frame.
+def video_writer(path: str | Path, fps: int, fmt: str | None = None):
+    """An imageio writer for an mp4 (ffmpeg, H.264) or a looping gif."""
+    fmt = output_format(path, fmt)
+    if fmt == "png":
+        raise ValueError(f"{str(path)!r}: a PNG strip is not a video; use open_sink()")
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    if fmt == "mp4":
+        return imageio.get_writer(
+            path, format="FFMPEG", fps=fps, codec="libx264", quality=7, macro_block_size=8
+        )
+    return imageio.get_writer(path, format="GIF", mode="I", duration=1000.0 / fps, loop=0)
 
-    Returns one summary per episode (task, return, length, success).
+
+class VideoSink:
+    """Every frame goes into the video; episode boundaries are invisible."""
+
+    def __init__(self, path, fps: int, fmt: str | None = None):
+        self.path = Path(path)
+        self._writer = video_writer(path, fps, fmt)
+
+    def append(self, frame: np.ndarray) -> None:
+        self._writer.append_data(frame)
+
+    def end_episode(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+class StripSink:
+    """A PNG with one row per episode of `per_episode` frames evenly spread over the episode.
+
+    Episode lengths are not known in advance, so frames are kept at a stride that doubles whenever
+    more than 2 x `per_episode` are held: memory stays bounded and the kept frames stay even.
     """
-    if every < 1:
-        raise ValueError(f"every={every}: must be >= 1")
-    fps = fps or max(1, round(env.metadata.get("render_fps", 50) / every))
-    episodes = len(tasks) if tasks is not None else episodes
-    summaries = []
-    with (
-        video_writer(out, fps) as writer,
-        tqdm(total=episodes * max_steps, disable=not progress, unit="step", desc="render") as bar,
-    ):
-        for ep in range(episodes):
-            options = {"task": tasks[ep]} if tasks is not None else None
-            obs, info = env.reset(seed=None if seed is None else seed + ep, options=options)
-            writer.append_data(env.render())
-            ret, length, done = 0.0, 0, False
-            while not done and length < max_steps:
-                obs, reward, terminated, truncated, info = env.step(policy(obs))
-                ret += float(reward)
-                length += 1
-                done = terminated or truncated
-                if length % every == 0:
-                    writer.append_data(env.render())
-                bar.update(1)
-            bar.update(max_steps - length)
-            summaries.append(
-                {
-                    "task": env.unwrapped.get_task(),
-                    "return": ret,
-                    "length": length,
-                    "success": bool(info.get("success", False)),
-                }
-            )
-    return summaries
+
+    def __init__(self, path, per_episode: int = 6):
+        if not isinstance(per_episode, int) or per_episode < 1:
+            raise ValueError(f"per_episode={per_episode!r}; valid: an integer >= 1")
+        self.path, self.per_episode = Path(path), per_episode
+        self._rows: list[np.ndarray] = []
+        self._kept: list[np.ndarray] = []
+        self._stride, self._seen = 1, 0
+        self._last: np.ndarray | None = None
+
+    def append(self, frame: np.ndarray) -> None:
+        self._last = frame.copy()
+        if self._seen % self._stride == 0:
+            self._kept.append(self._last)
+            if len(self._kept) > 2 * self.per_episode:
+                self._kept, self._stride = self._kept[::2], 2 * self._stride
+        self._seen += 1
+
+    def end_episode(self) -> None:
+        if not self._kept:
+            return
+        if self._kept[-1] is not self._last:  # the episode's end is always shown
+            self._kept.append(self._last)
+        picks = np.unique(np.linspace(0, len(self._kept) - 1, self.per_episode).round().astype(int))
+        frames = [self._kept[i] for i in picks]
+        frames += [np.zeros_like(frames[0])] * (self.per_episode - len(frames))
+        self._rows.append(np.concatenate(frames, axis=1))
+        self._kept, self._stride, self._seen = [], 1, 0
+
+    def close(self) -> None:
+        self.end_episode()
+        if not self._rows:
+            raise ValueError(f"no frames to write to {str(self.path)!r}")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        imageio.imwrite(self.path, np.concatenate(self._rows, axis=0), format="PNG")
+
+
+def open_sink(path, fps: int, fmt: str | None = None, strip_frames: int = 6):
+    """A VideoSink (mp4, gif) or a StripSink (png) for `path`."""
+    if output_format(path, fmt) == "png":
+        return StripSink(path, strip_frames)
+    return VideoSink(path, fps, fmt)
+
+
+def tile(frames: list[np.ndarray], cols: int) -> np.ndarray:
+    """Frames of equal size in a grid of `cols` columns (missing cells black)."""
+    if not frames:
+        raise ValueError("tile: no frames")
+    shape = frames[0].shape
+    if any(f.shape != shape for f in frames):
+        raise ValueError(f"tile: frames differ in size: {sorted({f.shape for f in frames})}")
+    rows = -(-len(frames) // cols)
+    cells = list(frames) + [np.zeros_like(frames[0])] * (rows * cols - len(frames))
+    return np.concatenate(
+        [np.concatenate(cells[r * cols : (r + 1) * cols], axis=1) for r in range(rows)], axis=0
+    )

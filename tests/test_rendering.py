@@ -1,4 +1,4 @@
-"""Offscreen rendering through EGL and OSMesa, and the `acl3d render` CLI's video files."""
+"""Offscreen rendering through EGL and OSMesa, GL failures, and the `acl3d render` CLI's files."""
 
 import os
 import subprocess
@@ -9,6 +9,7 @@ import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from gl_support import require_backend, require_offscreen_gl, run_checked
 
 from acl3d.cli import main
 from acl3d.envs.track_env import TrackEnv
@@ -28,18 +29,32 @@ FRAME_SCRIPT = textwrap.dedent(
     """
 )
 
+# Hides one GL library from this process (as on a machine without it), then renders.
+HIDDEN_LIBRARY_SCRIPT = textwrap.dedent(
+    """
+    import ctypes, ctypes.util, sys
+    hidden = sys.argv[1]
+    load, find = ctypes.CDLL.__init__, ctypes.util.find_library
+    def refuse(self, name, *args, **kwargs):
+        if name and hidden in str(name):
+            raise OSError(f"{name}: cannot open shared object file")
+        load(self, name, *args, **kwargs)
+    ctypes.CDLL.__init__ = refuse
+    ctypes.util.find_library = lambda name: None if hidden in name else find(name)
+    import acl3d, gymnasium as gym
+    env = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=64, height=48)
+    env.reset(seed=0)
+    env.render()
+    """
+)
+
 
 def render_in_subprocess(backend, tmp_path):
+    require_backend(backend)
     out = tmp_path / f"{backend}.npy"
     env = {**os.environ, "MUJOCO_GL": backend}
     env.pop("PYOPENGL_PLATFORM", None)
-    subprocess.run(
-        [sys.executable, "-c", FRAME_SCRIPT, str(out)],
-        env=env,
-        check=True,
-        capture_output=True,
-        timeout=120,
-    )
+    run_checked([sys.executable, "-c", FRAME_SCRIPT, str(out)], env=env)
     return np.load(out)
 
 
@@ -52,6 +67,7 @@ def test_egl_and_osmesa_render_the_same_frame(tmp_path):
 
 
 def test_render_follows_the_walker_and_sees_new_terrain():
+    require_offscreen_gl()
     env = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=160, height=120)
     env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})
     flat = env.render()
@@ -70,6 +86,7 @@ def test_bad_render_arguments():
 
 @pytest.mark.parametrize("suffix", [".mp4", ".gif"])
 def test_render_cli_writes_a_video(tmp_path, suffix, capsys):
+    require_offscreen_gl()
     out = tmp_path / f"rollout{suffix}"
     code = main(
         [
@@ -117,8 +134,25 @@ def test_missing_gl_backend_gives_an_actionable_message(tmp_path):
         for k, v in os.environ.items()
         if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY")
     }
-    proc = subprocess.run(
-        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120
-    )
-    assert proc.returncode != 0
+    proc = run_failing([sys.executable, "-c", script], env=env)
     assert "libosmesa6" in proc.stderr and "import acl3d first" in proc.stderr
+
+
+def run_failing(args, env):
+    proc = subprocess.run(args, env=env, capture_output=True, text=True, timeout=180)
+    assert proc.returncode != 0, f"expected a failure; stdout:\n{proc.stdout}"
+    return proc
+
+
+@pytest.mark.parametrize(
+    ("backend", "library", "package"),
+    [("osmesa", "OSMesa", "libosmesa6"), ("egl", "EGL", "libegl1 libegl-mesa0")],
+)
+def test_a_missing_backend_library_names_the_backend_and_its_package(backend, library, package):
+    env = {k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"}
+    env["MUJOCO_GL"] = backend
+    proc = run_failing([sys.executable, "-c", HIDDEN_LIBRARY_SCRIPT, library], env)
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("RuntimeError: OpenGL rendering failed"), proc.stderr
+    assert f"MUJOCO_GL={backend}" in last and f"apt-get install {package}" in last
+    assert "NoneType" in last  # the original error is kept in the message

@@ -1,17 +1,35 @@
-"""`acl3d render`: write an mp4/gif of rollouts on a track (random or zero actions)."""
+"""`acl3d render`: videos (mp4, gif) or PNG strips of rollouts, labelled with task, step and return.
+
+Actions come from a trained model (`--model RUN_DIR|MODEL.zip`, with its VecNormalize
+statistics), from several models side by side (`--compare A B ...`, one labelled cell each), or
+are random/zero (`--policy`). Tasks: `--task` (repeatable), a test set (`--test-set`, the
+`--episodes` tasks spread from easy to hard), the run's own test set, or the env's default task.
+"""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--env", default="stump-tracks", help="environment (stump-tracks, hexagon-tracks, ...)"
+    what = p.add_mutually_exclusive_group()
+    what.add_argument(
+        "--model", metavar="RUN_DIR|MODEL.zip", help="play a trained policy (a run or a model zip)"
     )
-    p.add_argument("--body", default="classic_bipedal", help="body name (see acl3d.bodies.BODIES)")
+    what.add_argument(
+        "--compare",
+        nargs="+",
+        metavar="RUN",
+        help="play the same tasks with several runs/models side by side (one cell each)",
+    )
+    what.add_argument(
+        "--policy", choices=("random", "zero"), help="untrained actions (default: random)"
+    )
+    p.add_argument("--env", help="environment (default: the run's, else stump-tracks)")
+    p.add_argument("--body", help="body name (default: the run's, else classic_bipedal)")
     p.add_argument(
         "--planar",
         choices=("yes", "no", "default"),
@@ -19,69 +37,152 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="sagittal-plane or free 3D body",
     )
     p.add_argument(
-        "--task", default="", help='task, e.g. "stump_height=1.5,obstacle_spacing=3" or a JSON dict'
+        "--task",
+        action="append",
+        default=[],
+        help='a task, e.g. "stump_height=1.5,obstacle_spacing=3" or a JSON dict (repeatable)',
     )
-    p.add_argument("--episodes", type=int, default=1)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--policy", choices=("random", "zero"), default="random", help="actions to play")
+    p.add_argument(
+        "--test-set",
+        help="play --episodes tasks of a test set (grid, uniform, a named set, .json/.csv)",
+    )
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=1,
+        help="episodes (one --task repeated, or tasks picked from the test set, easy to hard)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the first reset (as evaluate)")
+    p.add_argument("--stochastic", action="store_true", help="sample the model's actions")
     p.add_argument("--max-steps", type=int, default=2000, help="steps per episode at most")
     p.add_argument("--every", type=int, default=1, help="keep every N-th frame (smaller GIFs)")
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--width", type=int, default=640, help="frame (or grid cell) width")
+    p.add_argument("--height", type=int, default=480, help="frame (or grid cell) height")
+    p.add_argument("--cols", type=int, help="grid columns for --compare (default: near-square)")
     p.add_argument(
         "--quality",
         choices=("fast", "high"),
         default="fast",
         help="high: MSAA + shadows for publication",
     )
-    p.add_argument("--out", default="rollout.mp4", help="output .mp4 or .gif")
+    p.add_argument("--no-overlay", action="store_true", help="no task/step/return label")
+    p.add_argument("--format", choices=("mp4", "gif", "png"), help="default: from --out")
+    p.add_argument("--strip-frames", type=int, default=6, help="frames per episode in a PNG strip")
+    p.add_argument("--out", default="rollout.mp4", help="output .mp4, .gif or .png (strip)")
     p.add_argument("--no-progress", action="store_true")
 
 
-def run(args: argparse.Namespace) -> int:
-    from acl3d.envs import make
-    from acl3d.video import record_rollouts
+def _check_counts(args) -> None:
+    for name in ("episodes", "max_steps", "every", "width", "height", "strip_frames"):
+        value = getattr(args, name)
+        if value < 1:
+            raise ValueError(f"--{name.replace('_', '-')}={value}: must be >= 1")
+    if args.cols is not None and args.cols < 1:
+        raise ValueError(f"--cols={args.cols}: must be >= 1")
+    if len(args.task) > 1 and args.episodes != 1:
+        raise ValueError("--episodes repeats a single --task; with several --task leave it at 1")
+    if args.task and args.test_set:
+        raise ValueError("--task and --test-set are exclusive: give tasks one way")
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes={args.episodes}: must be >= 1")
-    planar = {"yes": True, "no": False, "default": None}[args.planar]
-    env = make(
-        args.env,
-        body=args.body,
-        planar=planar,
-        render_mode="rgb_array",
-        width=args.width,
-        height=args.height,
-        quality=args.quality,
-    )
-    try:
-        task = env.unwrapped.task_space.parse(args.task) if args.task else {}
+
+def _source(target, args):
+    """(model path or None, env name, body, env kwargs, run test tasks, cell title)."""
+    from acl3d.cli.evaluate import resolve_target
+
+    if target is None:
+        return None, args.env or "stump-tracks", args.body or "classic_bipedal", {}, None, ""
+    model, env_name, body, env_kwargs, run_tasks = resolve_target(target, args.env, args.body)
+    title = Path(target).name if Path(target).is_dir() else Path(target).stem
+    if Path(target).is_dir():
+        from acl3d.training.run_dir import RunDir
+
+        title += f" ({RunDir(target).read_config().get('teacher', '?')})"
+    return model, env_name, body, env_kwargs, run_tasks, title
+
+
+def _make_env(env_name, body, env_kwargs, args):
+    from acl3d.training.workers import make_env
+
+    kwargs = dict(env_kwargs, width=args.width, height=args.height, quality=args.quality)
+    if args.planar != "default":
+        kwargs["planar"] = args.planar == "yes"
+    return make_env(env_name, body, kwargs, render_mode="rgb_array")
+
+
+def _tasks(env, args, run_tasks) -> list:
+    """Tasks to play, as flat vectors (the env's task space checks them)."""
+    from acl3d.teachers import test_sets
+    from acl3d.training.report import pick_video_tasks
+
+    space = env.unwrapped.task_space
+    if args.task:
+        tasks = [space.to_vector(space.parse(t)) for t in args.task]
+        return tasks * args.episodes
+    if args.test_set is not None:
+        profile = getattr(env.unwrapped, "curriculum_profile", None)
+        pool = test_sets.resolve(args.test_set, space, max(100, args.episodes), profile)
+        return list(pick_video_tasks(pool, args.episodes))
+    if run_tasks is not None:
+        return list(pick_video_tasks(np.asarray(run_tasks), args.episodes))
+    return [space.to_vector({})] * args.episodes
+
+
+def _policy(model, env, args):
+    from acl3d.training.trained_policy import TrainedPolicy
+
+    if model is None:
         rng = np.random.default_rng(args.seed)
         space = env.action_space
-        if args.policy == "random":
 
-            def policy(obs):
-                return rng.uniform(space.low, space.high)
-        else:
+        def zero(obs):
+            return np.zeros(space.shape, dtype=space.dtype)
 
-            def policy(obs):
-                return np.zeros(space.shape)
+        def uniform(obs):
+            return rng.uniform(space.low, space.high).astype(space.dtype)
 
-        summaries = record_rollouts(
-            env,
-            policy,
+        return (zero, "zero actions") if args.policy == "zero" else (uniform, "random actions")
+    policy = TrainedPolicy(model, deterministic=not args.stochastic)
+    policy.check_env(env)
+    return policy, None
+
+
+def run(args: argparse.Namespace) -> int:
+    from acl3d.playback import EpisodePlayer, record_grid
+    from acl3d.video import output_format
+
+    _check_counts(args)
+    output_format(args.out, args.format)  # a bad --out fails before any env is built
+    targets = args.compare or [args.model]
+    players, tasks = [], None
+    try:
+        for target in targets:
+            model, env_name, body, env_kwargs, run_tasks, title = _source(target, args)
+            env = _make_env(env_name, body, env_kwargs, args)
+            policy, label = _policy(model, env, args)
+            players.append(EpisodePlayer(env, policy, title or label, not args.no_overlay))
+            if tasks is None:
+                tasks = _tasks(env, args, run_tasks)
+        summaries = record_grid(
+            players,
             args.out,
-            tasks=[task] * args.episodes,
+            tasks,
             seed=args.seed,
             max_steps=args.max_steps,
             every=args.every,
             progress=not args.no_progress,
+            cols=args.cols if args.compare else 1,
+            fmt=args.format,
+            strip_frames=args.strip_frames,
         )
     finally:
-        env.close()
-    for i, s in enumerate(summaries):
-        print(
-            f"episode {i}: return {s['return']:.1f}, length {s['length']}, success {s['success']}"
-        )
+        for player in players:
+            player.env.close()
+    for player, runs in zip(players, summaries):
+        prefix = f"{player.title}: " if args.compare else ""
+        for i, s in enumerate(runs):
+            print(
+                f"{prefix}episode {i}: return {s['return']:.1f}, length {s['length']}, "
+                f"success {s['success']}"
+            )
     print(f"wrote {args.out}")
     return 0

@@ -122,25 +122,19 @@ def write_video(
     size: tuple[int, int] = (480, 320),
     seed: int = 0,
 ) -> tuple[Path, list[dict]]:
-    """final.mp4: the deterministic policy on `n_tasks` test tasks (easy to hard)."""
-    from acl3d.training import checkpoint, students
+    """final.mp4: the deterministic policy on `n_tasks` test tasks (easy to hard), labelled.
+
+    The same playback as `acl3d render --model RUN` (acl3d.playback).
+    """
+    from acl3d.playback import record_rollouts
+    from acl3d.training.trained_policy import TrainedPolicy
     from acl3d.training.workers import make_env
-    from acl3d.video import record_rollouts
 
     config = run.read_config()
-    model_path = run.best_model()
-    model = students.load(config["student"], model_path)
-    normalize = checkpoint.observation_normalizer(model_path)
+    policy = TrainedPolicy(run.best_model())
     tasks = run.test_tasks()
     if tasks is None:
         raise ValueError(f"run directory {str(run.path)!r} has no teacher dump with test tasks yet")
-
-    def policy(obs):
-        obs = np.asarray(obs, dtype=np.float32)[None]
-        if normalize is not None:
-            obs = normalize(obs)
-        return model.predict(obs, deterministic=True)[0][0]
-
     env_kwargs = dict(config.get("env_kwargs") or {}, width=size[0], height=size[1])
     env = make_env(config["env"], config["body"], env_kwargs, render_mode="rgb_array")
     path = out / "final.mp4"
@@ -154,6 +148,7 @@ def write_video(
             max_steps=max_steps,
             every=every,
             progress=False,
+            title=f"{run.path.name} ({config.get('teacher', '?')})",
         )
     finally:
         env.close()
