@@ -128,6 +128,15 @@ def seed(value, name: str = "seed") -> int | None:
     return integer(name, value, 0)
 
 
+def real_array_in(name: str, value, low: float, high: float, what: str = "values in"):
+    """`real_array` whose every element lies in [low, high] (the message shows the range)."""
+    arr = real_array(name, value)
+    if np.any(arr < low) or np.any(arr > high):
+        shown = np.round(arr, 4).tolist()
+        raise fail(name, shown, f"{what} [{low:g}, {high:g}]")
+    return arr
+
+
 def only_reals(value) -> bool:
     """Recursively: only real numbers in nested lists/tuples (no bools, strings, None, complex)."""
     if isinstance(value, (list, tuple)):

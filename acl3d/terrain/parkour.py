@@ -21,6 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.task_space import TaskParameter, TaskSpace
 from acl3d.terrain.tracks import START_PAD, TERRAIN_STEP
 
@@ -102,13 +103,8 @@ def parkour_task_space(input_space: str = "medium") -> TaskSpace:
 def check_buildable(task: Mapping[str, object]) -> None:
     """Raise ValueError naming the parameter, its value and the buildable range."""
     for name, value in task.items():
-        if name not in BUILDABLE:
-            raise ValueError(f"unknown Parkour parameter {name!r}; valid: {list(BUILDABLE)}")
-        lo, hi = BUILDABLE[name]
-        arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
-        if not np.all(np.isfinite(arr)) or np.any((arr < lo) | (arr > hi)):
-            shown = np.round(arr, 4).tolist() if arr.size > 1 else float(arr[0])
-            raise ValueError(f"{name}={shown} is outside the buildable range [{lo:g}, {hi:g}]")
+        validation.choice("Parkour parameter", name, list(BUILDABLE))
+        validation.real_array_in(name, value, *BUILDABLE[name], "values in the buildable range")
 
 
 def _truncated_normal(rng: np.random.Generator, shape, std: float) -> np.ndarray:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.task_space import TaskParameter, TaskSpace
 
 TERRAIN_STEP = 14 / 30  # TS, metres
@@ -109,15 +110,8 @@ def track_task_space(names) -> TaskSpace:
 def check_buildable(task: Mapping[str, np.ndarray]) -> None:
     """Raise ValueError naming the parameter, value and range if the generator cannot build it."""
     for name, value in task.items():
-        lo, hi = _BUILDABLE[name]
-        arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name}={value!r} is not finite")
-        bad = (arr < lo) | (arr > hi)
-        if np.any(bad):
-            raise ValueError(
-                f"{name}={np.round(arr, 4).tolist() if arr.size > 1 else float(arr[0])} is outside the buildable range [{lo:g}, {hi:g}]"
-            )
+        validation.choice("track parameter", name, list(_BUILDABLE))
+        validation.real_array_in(name, value, *_BUILDABLE[name], "values in the buildable range")
 
 
 @dataclass(frozen=True)
