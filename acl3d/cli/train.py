@@ -10,6 +10,8 @@ from pathlib import Path
 
 import yaml
 
+from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
+
 _FLAGS = {  # store_true options: config field -> help
     "shuffle_dimensions": "cut each task dimension in 4 and shuffle the pieces (rugged difficulty)",
     "scale_reward": "give the teacher returns scaled to [0, 1] with the env's reward bounds",
@@ -42,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("curriculum profile")
     g.add_argument(
         "--expert-knowledge",
-        choices=("no", "low", "high"),
+        choices=EXPERT_KNOWLEDGE,
         help="what the teacher may know about the task space (default low)",
     )
     g.add_argument(
