@@ -8,6 +8,7 @@ beside it as `X_vecnormalize.json/.npz`.
 from __future__ import annotations
 
 import random
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,12 @@ def normalization_path(model_path) -> Path:
 
 
 def save_normalization(vecnorm: VecNormalize, model_path) -> None:
-    state = {
+    save_state(normalization_path(model_path), normalization_state(vecnorm))
+
+
+def normalization_state(vecnorm: VecNormalize) -> dict:
+    """The statistics and settings `observation_normalizer` needs (JSON + arrays)."""
+    return {
         "obs_rms": {k: np.asarray(getattr(vecnorm.obs_rms, k)) for k in _RMS},
         "ret_rms": {k: np.asarray(getattr(vecnorm.ret_rms, k)) for k in _RMS},
         "clip_obs": vecnorm.clip_obs,
@@ -36,7 +42,6 @@ def save_normalization(vecnorm: VecNormalize, model_path) -> None:
         "norm_obs": vecnorm.norm_obs,
         "norm_reward": vecnorm.norm_reward,
     }
-    save_state(normalization_path(model_path), state)
 
 
 def load_normalization_into(vecnorm: VecNormalize, model_path) -> None:
@@ -46,6 +51,55 @@ def load_normalization_into(vecnorm: VecNormalize, model_path) -> None:
         for k in _RMS:
             value = np.asarray(state[key][k], dtype=np.float64)
             setattr(rms, k, value if value.ndim else float(value))
+
+
+def normalization_runtime(vecnorm: VecNormalize) -> dict:
+    """What VecNormalize carries between steps besides its statistics: the running discounted
+    return of each env (reward normalisation) and the last raw observations and rewards."""
+    return {
+        "returns": vecnorm.returns,
+        "old_obs": vecnorm.old_obs,
+        "old_reward": vecnorm.old_reward,
+    }
+
+
+def set_normalization_runtime(vecnorm: VecNormalize, state: dict) -> None:
+    vecnorm.returns = np.asarray(state["returns"], dtype=np.float64).copy()
+    vecnorm.old_obs, vecnorm.old_reward = state["old_obs"], state["old_reward"]
+
+
+def algorithm_state(model) -> dict:
+    """SB3's between-rollouts state that its zip stores only by pickle or not at all: the last
+    observations and episode starts, the episode-info windows and the action space's RNG
+    (SAC's random warm-up actions)."""
+    return {
+        "last_obs": model._last_obs,
+        "last_episode_starts": model._last_episode_starts,
+        "last_original_obs": getattr(model, "_last_original_obs", None),
+        "ep_info_buffer": [_plain(info) for info in model.ep_info_buffer or ()],
+        "ep_success_buffer": [bool(v) for v in model.ep_success_buffer or ()],
+        "num_timesteps": int(model.num_timesteps),
+        "episode_num": int(model._episode_num),
+        "action_space_rng": model.action_space.np_random.bit_generator.state,
+    }
+
+
+def set_algorithm_state(model, state: dict) -> None:
+    """Inverse of `algorithm_state` on a model loaded from the same checkpoint's zip."""
+    model._last_obs = state["last_obs"]
+    model._last_episode_starts = np.asarray(state["last_episode_starts"], dtype=bool)
+    if state["last_original_obs"] is not None:
+        model._last_original_obs = state["last_original_obs"]
+    window = model._stats_window_size
+    model.ep_info_buffer = deque(state["ep_info_buffer"], maxlen=window)
+    model.ep_success_buffer = deque(state["ep_success_buffer"], maxlen=window)
+    model.num_timesteps = int(state["num_timesteps"])
+    model._episode_num = int(state["episode_num"])
+    model.action_space.np_random.bit_generator.state = state["action_space_rng"]
+
+
+def _plain(info: dict) -> dict:
+    return {k: v.item() if isinstance(v, np.generic) else v for k, v in info.items()}
 
 
 def observation_normalizer(model_path):

@@ -8,12 +8,16 @@
     RUN/teacher.json / .npz         the controller's dump (tasks, returns, teacher book-keeping)
     RUN/tb/                         TensorBoard (SB3 scalars + curriculum/* + eval/*)
     RUN/checkpoints/LATEST          name of the newest complete checkpoint folder
-    RUN/checkpoints/step_N/         model.zip, controller.*, vecnormalize.*, replay_buffer.npz,
-                                    rng.*, progress.json
+    RUN/checkpoints/step_N/         model.zip, model_vecnormalize.*, controller.*, runtime.*
+                                    (envs, curriculum queues, SB3 and VecNormalize runtime state),
+                                    replay_buffer.npz, rng.*, progress.json
     RUN/final_model.zip (+ final_vecnormalize.*)
 
-Checkpoints are written into a fresh folder and published by atomically replacing LATEST, so a
-crash while saving leaves the previous checkpoint usable. CSV rows are flushed as written.
+Crash safety: every file other than the append-only CSVs is written to a temporary name, fsynced
+and renamed over its target, so a reader sees the old or the new file, never a mix. A checkpoint
+is written into `checkpoints/.partial_step_N/`, renamed to `step_N/` once complete and only then
+named in LATEST; a kill at any moment leaves LATEST on a complete checkpoint. CSV rows are
+flushed as written; a resume drops rows logged after its checkpoint (and a torn last row).
 """
 
 from __future__ import annotations
@@ -26,10 +30,13 @@ import shutil
 import subprocess
 import sys
 import traceback
+from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 
 import yaml
+
+from acl3d.teachers.base import load_state
 
 KEEP_CHECKPOINTS = 2
 _PACKAGES = ("acl3d", "stable-baselines3", "torch", "gymnasium", "mujoco", "numpy", "scikit-learn")
@@ -63,31 +70,52 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
+def fsync_path(path: Path) -> None:
+    """Flush a written file (or a folder's entries) to disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_replace(tmp: Path, path: Path) -> None:
+    """Move the complete file `tmp` over `path` (fsynced first: never an empty file after a crash)."""
+    fsync_path(tmp)
     os.replace(tmp, path)
 
 
+def atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    atomic_replace(tmp, path)
+
+
+def atomic_state_files(prefix: Path, write: Callable[[Path], None]) -> None:
+    """`write(tmp)` writes TMP.json + TMP.npz (acl3d's state format); both then replace
+    PREFIX.json/.npz, the .npz first so the .json never names arrays that are not there yet."""
+    tmp = prefix.with_name(f"_{prefix.name}_{os.getpid()}_tmp")
+    write(tmp)
+    for suffix in (".npz", ".json"):
+        atomic_replace(tmp.with_suffix(suffix), prefix.with_suffix(suffix))
+
+
 class CsvLog:
-    """Append-only CSV with a fixed header; rows are flushed so a crash loses nothing written."""
+    """Append-only CSV with a fixed header; each write opens, appends and closes, so nothing
+    written is lost to a crash and there is no file handle to manage."""
 
     def __init__(self, path: Path, header: list[str]):
         self.path = path
         self.header = list(header)
-        exists = path.exists() and path.stat().st_size > 0
-        self._file = path.open("a", newline="")
-        self._writer = csv.writer(self._file)
-        if not exists:
-            self._writer.writerow(self.header)
-            self._file.flush()
+        if not (path.exists() and path.stat().st_size > 0):
+            self.write_rows([self.header])
 
     def write(self, row) -> None:
-        self._writer.writerow(row)
-        self._file.flush()
+        self.write_rows([row])
 
-    def close(self) -> None:
-        self._file.close()
+    def write_rows(self, rows) -> None:
+        with self.path.open("a", newline="") as f:
+            csv.writer(f).writerows(rows)
 
 
 def truncate_csv(path: Path, step_column: str, max_step: int) -> None:
@@ -99,11 +127,22 @@ def truncate_csv(path: Path, step_column: str, max_step: int) -> None:
     if not rows:
         return
     col = rows[0].index(step_column)
-    kept = [rows[0]] + [r for r in rows[1:] if r and int(float(r[col])) <= max_step]
-    tmp = path.with_name(path.name + ".tmp")
+    kept = [rows[0]] + [r for r in rows[1:] if _complete(r, rows[0]) and _step(r[col]) <= max_step]
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     with tmp.open("w", newline="") as f:
         csv.writer(f).writerows(kept)
-    os.replace(tmp, path)
+    atomic_replace(tmp, path)
+
+
+def _complete(row: list[str], header: list[str]) -> bool:
+    return len(row) == len(header)
+
+
+def _step(cell: str) -> float:
+    try:
+        return float(cell)
+    except ValueError:  # a row torn by a kill
+        return float("inf")
 
 
 def read_csv(path: Path) -> dict[str, list[float]]:
@@ -177,9 +216,19 @@ class RunDir:
 
     def write_config(self, config: dict, **sections) -> None:
         """`config` is what `read_config` returns; `sections` are derived facts, for people."""
-        doc = {"config": config, **sections, "environment": environment_info()}
-        _atomic_write(self.config_yaml, yaml.safe_dump(doc, sort_keys=False))
-        _atomic_write(self.path / "config.json", json.dumps(doc, indent=2))
+        self._write_doc({"config": config, **sections, "environment": environment_info()})
+
+    def update_config(self, config: dict, **sections) -> None:
+        """On resume: the new config and sections; the original environment (command line,
+        versions) is kept and this session's is appended to `resumed`."""
+        doc = yaml.safe_load(self.config_yaml.read_text())
+        doc.update({"config": config, **sections})
+        doc["resumed"] = [*doc.get("resumed", []), environment_info()]
+        self._write_doc(doc)
+
+    def _write_doc(self, doc: dict) -> None:
+        atomic_write(self.config_yaml, yaml.safe_dump(doc, sort_keys=False))
+        atomic_write(self.path / "config.json", json.dumps(doc, indent=2))
 
     def read_config(self) -> dict:
         return self.read_section("config")
@@ -190,7 +239,7 @@ class RunDir:
         return yaml.safe_load(self.config_yaml.read_text())[name]
 
     def set_status(self, status: str, **extra) -> None:
-        _atomic_write(self.path / "status.json", json.dumps({"status": status, **extra}, indent=2))
+        atomic_write(self.path / "status.json", json.dumps({"status": status, **extra}, indent=2))
 
     def set_crashed(self, exc: BaseException) -> None:
         tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
@@ -199,22 +248,37 @@ class RunDir:
         )
 
     # ------------------------------------------------------------------ checkpoints
-    def new_checkpoint_dir(self, step: int) -> Path:
-        folder = self.checkpoints / f"step_{step:012d}"
-        if folder.exists():
-            shutil.rmtree(folder)
-        folder.mkdir(parents=True)
-        return folder
+    def write_checkpoint(self, step: int, write: Callable[[Path], None]) -> Path:
+        """Let `write(folder)` fill a fresh folder, then publish it as `step_N` and name it in
+        LATEST, each move atomic: a crash at any point leaves LATEST on a complete checkpoint."""
+        final = self.checkpoints / f"step_{step:012d}"
+        if final.name == self.latest_checkpoint_name():
+            raise ValueError(f"checkpoint {final.name} is already published")
+        partial = self.checkpoints / f".partial_{final.name}"
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        write(partial)
+        for file in partial.iterdir():
+            fsync_path(file)
+        fsync_path(partial)
+        shutil.rmtree(final, ignore_errors=True)  # left by a crash between rename and LATEST
+        os.replace(partial, final)
+        fsync_path(self.checkpoints)
+        atomic_write(self.checkpoints / "LATEST", final.name)
+        fsync_path(self.checkpoints)
+        self._prune(final.name)
+        return final
 
-    def publish_checkpoint(self, folder: Path) -> None:
-        """Make `folder` the resume point, then prune older checkpoints."""
-        _atomic_write(self.checkpoints / "LATEST", folder.name)
-        older = sorted(p for p in self.checkpoints.glob("step_*") if p.name < folder.name)
+    def _prune(self, latest: str) -> None:
+        """Keep the newest KEEP_CHECKPOINTS; drop leftovers of interrupted saves."""
+        older = sorted(p for p in self.checkpoints.glob("step_*") if p.name < latest)
         for old in older[: max(0, len(older) - (KEEP_CHECKPOINTS - 1))]:
             shutil.rmtree(old, ignore_errors=True)
         for stale in self.checkpoints.glob("step_*"):
-            if stale.name > folder.name:  # left by a crash during an earlier save
+            if stale.name > latest:
                 shutil.rmtree(stale, ignore_errors=True)
+        for partial in self.checkpoints.glob(".partial_*"):
+            shutil.rmtree(partial, ignore_errors=True)
 
     def latest_checkpoint_name(self) -> str | None:
         pointer = self.checkpoints / "LATEST"
@@ -239,6 +303,4 @@ class RunDir:
         """The test set the run evaluated on (from its teacher dump), or None."""
         if not self.teacher_prefix.with_suffix(".json").exists():
             return None
-        from acl3d.teachers.base import load_state
-
         return load_state(self.teacher_prefix).get("test_tasks")

@@ -1,0 +1,199 @@
+"""`TrainConfig`: every option of a training run, and its strict validation.
+
+The CLI, config files and `train()` share one dataclass. `validate()` checks names, numbers and
+flags without building anything, so a bad option fails in a second with its name, value and the
+allowed values; nothing is coerced silently (a count written 2e6 is the only float accepted).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from acl3d import validation as check
+from acl3d.training import students
+from acl3d.training.workers import check_vec_env
+
+DEFAULT_N_ENVS = 1  # training envs when none are asked for (one place, chosen by the lead)
+EXPERT_KNOWLEDGE: tuple[str, ...] = ("no", "low", "high")
+TEACHMYAGENT_EVAL_EVERY = 500_000
+MIN_DEFAULT_EVAL_EVERY = 50_000
+TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
+# Evaluation envs get their own seed, the same at every evaluation, so successive evaluations
+# differ only by the policy (not by the stump-height noise of the test tracks).
+EVAL_SEED_OFFSET = 7919
+
+
+@dataclass
+class TrainConfig:
+    """Every option of a training run (the CLI, config files and `train()` share it)."""
+
+    env: str = "stump-tracks"
+    body: str = "classic_bipedal"
+    teacher: str = "random"
+    student: str = "sac"
+    preset: str = "benchmark"
+    steps: int = 2_000_000
+    n_envs: int = DEFAULT_N_ENVS
+    seed: int = 0
+    out: str | None = None
+    expert_knowledge: str = "low"
+    shuffle_dimensions: bool = False
+    scale_reward: bool = False
+    reset_student_every: int = 0
+    bounds: dict[str, list[float]] = field(default_factory=dict)
+    teacher_params: dict[str, Any] = field(default_factory=dict)
+    student_params: dict[str, Any] = field(default_factory=dict)
+    buffer_size: int | None = None
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    eval_every: int | None = None
+    eval_envs: int | None = None
+    eval_stochastic: bool = False
+    test_set: str | None = None
+    nb_test_episodes: int = 100
+    checkpoint_every: int | None = None
+    periodical_samples_every: int | None = None
+    save_replay_buffer: bool = True
+    vec_env: str = "auto"
+    envs_per_worker: int | None = None
+    start_method: str = "forkserver"
+    torch_threads: int = 1
+    progress_bar: bool = True
+    device: str = "cpu"
+    verbose: int = 1
+
+    def __post_init__(self):
+        for name in _COUNTS:  # accept 2e6 for 2000000 from Python callers and YAML files
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, check.integer(name, value, allow_float=True))
+        if isinstance(self.out, os.PathLike):
+            self.out = os.fspath(self.out)
+
+    # ------------------------------------------------------------------ derived values
+    @property
+    def effective_eval_every(self) -> int:
+        """TeachMyAgent's 500k, scaled down to 5 evaluations for runs shorter than 2.5M steps.
+
+        Never below 50k by default: one pass over the 100-task test set can cost up to 200k env
+        steps, so runs shorter than 50k steps get only the final evaluation.
+        """
+        if self.eval_every is not None:
+            return int(self.eval_every)
+        return int(min(TEACHMYAGENT_EVAL_EVERY, max(MIN_DEFAULT_EVAL_EVERY, self.steps // 5)))
+
+    @property
+    def effective_checkpoint_every(self) -> int:
+        return int(self.checkpoint_every or self.effective_eval_every)
+
+    @property
+    def effective_periodical_samples(self) -> int:
+        if self.periodical_samples_every is not None:
+            return int(self.periodical_samples_every)
+        return int(min(TEACHMYAGENT_PERIODICAL_SAMPLES, max(1, self.steps // 10)))
+
+    @property
+    def effective_eval_envs(self) -> int:
+        return int(self.eval_envs or self.n_envs)
+
+    @property
+    def eval_seed(self) -> int:
+        """The seed of every evaluation pass of this run (`acl3d evaluate` reuses it)."""
+        return int(self.seed) + EVAL_SEED_OFFSET
+
+    @classmethod
+    def from_dict(cls, values: dict) -> TrainConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown config option(s) {unknown}; valid: {sorted(known)}")
+        return cls(**values)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# ---------------------------------------------------------------------- validation
+_COUNTS = (
+    "steps", "n_envs", "nb_test_episodes", "torch_threads", "eval_envs", "eval_every",
+    "checkpoint_every", "buffer_size", "reset_student_every", "periodical_samples_every", "seed",
+    "envs_per_worker",
+)  # fmt: skip
+_REQUIRED_COUNTS = ("steps", "n_envs", "nb_test_episodes", "torch_threads", "seed")
+_MAY_BE_ZERO = ("reset_student_every", "periodical_samples_every", "seed")
+_FLAGS = (
+    "shuffle_dimensions",
+    "scale_reward",
+    "eval_stochastic",
+    "save_replay_buffer",
+    "progress_bar",
+)
+_TEXTS = ("env", "body", "teacher", "student", "preset", "device")
+_MAPPINGS = ("bounds", "teacher_params", "student_params", "env_kwargs")
+
+
+def validate(config: TrainConfig) -> None:
+    """Cheap checks of names, numbers and flags (everything that needs no environment)."""
+    from acl3d.teachers import TEACHERS
+
+    for name in _TEXTS:
+        value = getattr(config, name)
+        if not isinstance(value, str) or not value:
+            raise check.fail(name, value, "a non-empty string")
+    if config.teacher not in TEACHERS:
+        raise ValueError(f"teacher={config.teacher!r}; valid teachers: {', '.join(TEACHERS)}")
+    students.check_student(config.student, config.preset)
+    check.choice("expert_knowledge", config.expert_knowledge, EXPERT_KNOWLEDGE)
+    check_vec_env(config.vec_env, config.start_method)
+    for name in _COUNTS:
+        value = getattr(config, name)
+        if value is not None or name in _REQUIRED_COUNTS:
+            check.count(name, value, minimum=0 if name in _MAY_BE_ZERO else 1)
+    for name in _FLAGS:
+        check.flag(name, getattr(config, name))
+    check.integer("verbose", config.verbose, 0, 2)
+    for name in _MAPPINGS:
+        value = getattr(config, name)
+        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+            raise check.fail(name, value, "a mapping of names to values")
+    for name, pair in config.bounds.items():
+        check.real_array(f"bounds[{name!r}]", pair, shape=(2,))
+    for name in ("out", "test_set"):
+        value = getattr(config, name)
+        if value is not None and (not isinstance(value, str) or not value):
+            raise check.fail(name, value, "a path (non-empty string) or None")
+    if config.reset_student_every and config.reset_student_every >= config.steps:
+        raise ValueError(
+            f"reset_student_every ({config.reset_student_every}) must be < steps ({config.steps}), "
+            "otherwise the student is never reset"
+        )
+
+
+def student_params(config: TrainConfig) -> dict:
+    """The SB3 hyperparameters of the run: preset, then `student_params`, then `buffer_size`."""
+    overrides = dict(config.student_params)
+    if config.buffer_size is not None:
+        if config.student != "sac":
+            raise ValueError(
+                "buffer_size applies to the sac student only (ppo has no replay buffer)"
+            )
+        overrides["buffer_size"] = config.buffer_size
+    return students.hyperparameters(config.student, config.preset, config.n_envs, overrides)
+
+
+def steps_per_collection(student: str, params: dict, n_envs: int) -> int:
+    """Env steps SB3 collects between two checks of its step budget: a PPO rollout
+    (n_steps x n_envs), or SAC's train_freq x n_envs (1 x n_envs for episode-based train_freq)."""
+    if student == "ppo":
+        return int(params["n_steps"]) * n_envs
+    freq = params.get("train_freq", 1)
+    if isinstance(freq, (list, tuple)):
+        freq = freq[0] if len(freq) == 2 and freq[1] == "step" else 1
+    return int(freq) * n_envs
+
+
+def round_steps(steps: int, unit: int) -> int:
+    """`steps` rounded up to a whole number of collections (what SB3 will actually run)."""
+    return -(-int(steps) // unit) * unit

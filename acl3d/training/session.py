@@ -1,0 +1,217 @@
+"""The session of one run: its vec envs, student and teacher controller, and their checkpoints.
+
+A checkpoint holds everything that decides what happens next, so a resumed run continues bit for
+bit: SB3's zip (weights, optimisers, counters), the VecNormalize statistics and running returns,
+the replay buffer, the controller (teacher state and records), every worker env's state and task
+queue, SB3's last observations and episode windows, and the torch/numpy/python RNG states.
+Everything except SB3's own zip is JSON + NPZ.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecNormalize
+
+from acl3d.teachers.base import load_state, save_state
+from acl3d.training import checkpoint as ckpt
+from acl3d.training import students
+from acl3d.training.config import TrainConfig, student_params
+from acl3d.training.curriculum import CurriculumVecEnv
+from acl3d.training.evaluation import EvalResult, evaluate, make_predict
+from acl3d.training.run_dir import RunDir, atomic_replace, atomic_state_files
+from acl3d.training.workers import make_env, make_vec_env
+
+
+def build_controller(config: TrainConfig, task_space, profile=None):
+    """The teacher controller a run with `config` uses (test set and snapshots included);
+    `profile` is the env's `curriculum_profile` (reward bounds, expert knowledge, test sets)."""
+    from acl3d.teachers.controller import TeacherController
+
+    params = dict(config.teacher_params)
+    if config.teacher == "lessons":  # ML-Agents' "progress" measure is relative to the budget
+        params.setdefault("max_steps", int(config.steps))
+    return TeacherController(
+        config.teacher,
+        task_space,
+        config.seed,
+        teacher_params=params or None,
+        expert_knowledge=config.expert_knowledge,
+        profile=profile,
+        scale_reward=config.scale_reward,
+        shuffle_dimensions=config.shuffle_dimensions,
+        test_set=config.test_set,
+        nb_test_episodes=config.nb_test_episodes,
+        keep_periodical_task_samples=config.effective_periodical_samples,
+    )
+
+
+def probe_task_space(config: TrainConfig):
+    """(task space with the run's teacher bounds applied, the env's curriculum profile or None)."""
+    env = make_env(config.env, config.body, config.env_kwargs)
+    try:
+        task_space = getattr(env.unwrapped, "task_space", None)
+        profile = getattr(env.unwrapped, "curriculum_profile", None)
+    finally:
+        env.close()
+    if task_space is None:
+        raise ValueError(f"environment {config.env!r} has no task_space: no curriculum possible")
+    if config.bounds:
+        task_space = task_space.with_bounds(**{k: tuple(v) for k, v in config.bounds.items()})
+    return task_space, profile
+
+
+class Session:
+    """Builds the envs, student and controller of one (new or resumed) run.
+
+    Constructing it checks the teacher and student settings without starting any worker; the
+    envs start in `__enter__`, the student in `build_student()`.
+    """
+
+    def __init__(self, config: TrainConfig, run: RunDir, resume_from: Path | None = None):
+        self.config, self.run, self.resume_from = config, run, resume_from
+        task_space, profile = probe_task_space(config)
+        self.task_names = task_space.flat_names()
+        self.controller = build_controller(config, task_space, profile)
+        self.params = student_params(config)
+        self.train_env = self.eval_env = self.curriculum_env = self.vecnorm = None
+        self.model = None
+        self.started = time.perf_counter()
+        self.previous_wall_time = 0.0
+
+    def _vec_env(self, n_envs: int):
+        c = self.config
+        return make_vec_env(c.env, c.body, n_envs, c.env_kwargs, c.vec_env, c.start_method)
+
+    def __enter__(self):
+        self.curriculum_env = CurriculumVecEnv(self._vec_env(self.config.n_envs), self.controller)
+        env = self.curriculum_env
+        if students.uses_vecnormalize(self.config.student):
+            env = self.vecnorm = VecNormalize(
+                env,
+                norm_obs=True,
+                norm_reward=True,
+                clip_obs=10.0,
+                clip_reward=10.0,
+                gamma=self.params.get("gamma", 0.99),
+            )
+        self.train_env = env
+        self.eval_env = self._vec_env(self.config.effective_eval_envs)
+        return self
+
+    def __exit__(self, *exc):
+        for env in (self.train_env, self.eval_env):
+            if env is not None:
+                try:
+                    env.close()
+                except (OSError, EOFError):  # a dead worker must not hide the real error
+                    pass
+
+    def normalize_obs(self):
+        vn = self.vecnorm
+        return None if vn is None else (lambda obs: vn.normalize_obs(np.asarray(obs, np.float32)))
+
+    # ------------------------------------------------------------------ the student
+    def build_student(self) -> None:
+        """A new student, or the checkpoint's with every piece of state restored; then give
+        teachers that need it the student's value function (SPDL and other value-based ones)."""
+        c = self.config
+        if self.resume_from is None:
+            self.model = students.build(
+                c.student, self.params, self.train_env, c.seed, str(self.run.tb), c.device
+            )
+        else:
+            self._restore(self.resume_from)
+        if "value_estimator" in self.controller.needs:
+            self.controller.set_value_estimator(
+                students.value_estimator(self.model, self.normalize_obs())
+            )
+
+    def _restore(self, folder: Path) -> None:
+        c = self.config
+        model = self.model = students.load(
+            c.student, folder / "model.zip", env=self.train_env, device=c.device
+        )
+        model.tensorboard_log = str(self.run.tb)
+        runtime = load_state(folder / "runtime")
+        if self.vecnorm is not None:
+            ckpt.load_normalization_into(self.vecnorm, folder / "model.zip")
+            ckpt.set_normalization_runtime(self.vecnorm, runtime["vecnormalize"])
+        if (folder / "replay_buffer.npz").exists():
+            ckpt.load_replay_buffer(model.replay_buffer, folder / "replay_buffer.npz")
+        self.controller.load_state_dict(load_state(folder / "controller"))
+        self.curriculum_env.set_state(runtime["envs"])
+        ckpt.set_algorithm_state(model, runtime["algorithm"])
+        if any(worker["env"] is None for worker in runtime["envs"]["workers"]):
+            print(
+                f"[acl3d] {c.env} has no get_state(): the episodes running at the checkpoint "
+                "restart from a reset, so this resume is not bit-exact",
+                file=sys.stderr,
+            )
+            model._last_obs = None  # SB3 resets the envs (each pulls its queued task)
+            self.train_env.seed(c.seed + int(model.num_timesteps))
+        progress = load_state(folder / "progress")
+        self.previous_wall_time = float(progress.get("wall_time_s", 0.0))
+        ckpt.set_rng_state(load_state(folder / "rng"))  # last: nothing above may draw after it
+
+    def wall_time(self) -> float:
+        """Seconds of training so far, over all sessions of the run."""
+        return self.previous_wall_time + time.perf_counter() - self.started
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self) -> Path:
+        """Write a complete checkpoint of the current step and make it the resume point."""
+        folder = self.run.write_checkpoint(int(self.model.num_timesteps), self._write_checkpoint)
+        self.dump_teacher()
+        return folder
+
+    def _write_checkpoint(self, folder: Path) -> None:
+        model = self.model
+        model.save(folder / "model.zip")
+        runtime = {
+            "algorithm": ckpt.algorithm_state(model),
+            "envs": self.curriculum_env.get_state(),
+            "vecnormalize": None,
+        }
+        if self.vecnorm is not None:
+            ckpt.save_normalization(self.vecnorm, folder / "model.zip")
+            runtime["vecnormalize"] = ckpt.normalization_runtime(self.vecnorm)
+        if hasattr(model, "replay_buffer") and self.config.save_replay_buffer:
+            ckpt.save_replay_buffer(model.replay_buffer, folder / "replay_buffer.npz")
+        save_state(folder / "runtime", runtime)
+        save_state(folder / "controller", self.controller.state_dict())
+        save_state(folder / "rng", ckpt.rng_state())
+        progress = {
+            "num_timesteps": int(model.num_timesteps),
+            "episodes_done": int(self.curriculum_env.episodes_done),
+            "time": time.time(),
+            "wall_time_s": self.wall_time(),
+        }
+        save_state(folder / "progress", progress)
+
+    def dump_teacher(self) -> None:
+        """The controller's dump (RUN/teacher.*) for plots, replaced atomically."""
+        atomic_state_files(self.run.teacher_prefix, lambda tmp: self.controller.dump(str(tmp)))
+
+    def save_final_model(self) -> None:
+        """RUN/final_model.zip (+ its normalisation statistics), each replaced atomically."""
+        final = self.run.final_model
+        if self.vecnorm is not None:
+            atomic_state_files(
+                ckpt.normalization_path(final),
+                lambda tmp: save_state(tmp, ckpt.normalization_state(self.vecnorm)),
+            )
+        tmp = final.with_name(f"_{final.stem}_{os.getpid()}_tmp.zip")
+        self.model.save(tmp)
+        atomic_replace(tmp, final)
+
+    # ------------------------------------------------------------------ evaluation
+    def run_eval(self) -> EvalResult:
+        """One pass over the test set with the run's evaluation seed (the same every time)."""
+        c = self.config
+        predict = make_predict(self.model, not c.eval_stochastic, self.normalize_obs())
+        return evaluate(predict, self.eval_env, self.controller.test_tasks(), seed=c.eval_seed)
