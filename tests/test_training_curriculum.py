@@ -185,3 +185,64 @@ def test_evaluation_spreads_test_tasks_over_workers_and_pairs_results(kind):
     np.testing.assert_allclose(result.returns, result.tasks[:, 1] * lengths, rtol=1e-5)
     assert result.mastered_pct == 0.0
     np.testing.assert_array_equal(again.tasks, tasks[:2])
+
+
+class StumpController(RecordingController):
+    """Numbered Stump Tracks tasks (the number in stump_height); logs sample/record order."""
+
+    def __init__(self, needs=()):
+        super().__init__(needs)
+        self.most_ahead = 0  # max over time of (sampled - recorded)
+
+    def sample_task(self):
+        task = np.array([len(self.sampled) * 1e-3, self.rng.uniform(0, 6)], dtype=np.float32)
+        self.sampled.append(task)
+        self.most_ahead = max(self.most_ahead, len(self.sampled) - len(self.recorded))
+        return task
+
+
+def check_batched_counts(venv, controller, n_steps: int, tasks_ahead: int) -> int:
+    """Every finished episode reported once with the task it played; none lost."""
+    cvenv, rng = CurriculumVecEnv(venv, controller), np.random.default_rng(0)
+    cvenv.reset()
+    history = []
+    for _ in range(n_steps):
+        _, _, dones, infos = cvenv.step(rng.uniform(-1, 1, (venv.num_envs, 4)))
+        history.append((dones, infos))
+    finished = sum(int(d.sum()) for d, _ in history)
+    assert finished == len(controller.recorded) > 0
+    assert len(controller.sampled) == finished + tasks_ahead
+    ids = [int(round(r[0][0] * 1e3)) for r in controller.recorded]
+    assert len(set(ids)) == len(ids), "an episode was reported twice"
+    for (task, _, length, _, _), k in zip(controller.recorded, ids):
+        np.testing.assert_array_equal(task, controller.sampled[k])
+        assert 1 <= length
+    return sum(info.get("TimeLimit.truncated", False) for d, infos in history for info in infos)
+
+
+def test_batched_sub_envs_pull_tasks_at_their_own_reset():
+    from acl3d.envs.batched_sb3 import BatchedVecEnv
+
+    n = 3
+    controller = StumpController(needs={"step_rewards"})
+    venv = BatchedVecEnv("stump-tracks", n, curriculum=True, max_episode_steps=12)
+    try:
+        truncated = check_batched_counts(venv, controller, 50, tasks_ahead=n)
+    finally:
+        venv.close()
+    assert truncated > 0
+    # pulled at reset: never more than one task per sub-env handed out ahead of the reports
+    assert controller.most_ahead == n
+    assert controller.steps == 50 * n
+
+
+def test_batched_workers_keep_every_sub_env_queue_exact():
+    from acl3d.training.workers import make_vec_env
+
+    controller = StumpController()
+    venv = make_vec_env("stump-tracks", None, 4, vec_env="batched", envs_per_worker=2)
+    try:
+        assert type(venv).__name__ == "BatchedSubprocVecEnv" and venv.num_envs == 4
+        check_batched_counts(venv, controller, 120, tasks_ahead=2 * 4)  # running + prefetched
+    finally:
+        venv.close()

@@ -18,11 +18,21 @@ _ENTRY_POINTS = {
     "acl3d/HexagonTracks-v0": ("acl3d.envs.track_env:TrackEnv", {"track": "hexagon"}),
     "acl3d/Parkour-v0": ("acl3d.envs.parkour_env:ParkourEnv", {}),
 }
+# gymnasium.make_vec(id, num_envs, vectorization_mode="vector_entry_point"): the batched env
+_VECTOR_ENTRY_POINTS = {
+    "acl3d/StumpTracks-v0": "acl3d.envs.batched_vector:stump_tracks",
+    "acl3d/HexagonTracks-v0": "acl3d.envs.batched_vector:hexagon_tracks",
+    "acl3d/Parkour-v0": "acl3d.envs.batched_vector:parkour",
+}
 
 for _id, (_entry, _kwargs) in _ENTRY_POINTS.items():
     if _id not in gym.registry:
         gym.register(
-            id=_id, entry_point=_entry, kwargs=_kwargs, max_episode_steps=MAX_EPISODE_STEPS
+            id=_id,
+            entry_point=_entry,
+            vector_entry_point=_VECTOR_ENTRY_POINTS[_id],
+            kwargs=_kwargs,
+            max_episode_steps=MAX_EPISODE_STEPS,
         )
 
 

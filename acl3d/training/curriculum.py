@@ -152,6 +152,12 @@ class CurriculumVecEnv(VecEnvWrapper):
     `sample_task`, `record_episode`, `needs` and optionally `record_step` /
     `maybe_sample_periodically`). It must sit directly on the worker `VecEnv` (below any
     VecNormalize) so that it sees raw observations and rewards.
+
+    On an in-process batched env (`acl3d.envs.batched_sb3.BatchedVecEnv`, which has a
+    `task_source`) nothing is queued: each sub-env pulls its next task from `next_task` at its
+    own reset, after this wrapper was handed the step's finished episodes
+    (`episodes_finished`), so the teacher always knows an episode's outcome before it samples
+    that sub-env's next task.
     """
 
     def __init__(self, venv: VecEnv, controller, total_steps: int = 0):
@@ -165,6 +171,13 @@ class CurriculumVecEnv(VecEnvWrapper):
         self._actions = None
         needs = set(getattr(controller, "needs", ()))
         self._record_steps = "step_rewards" in needs
+        self._pull = hasattr(venv, "task_source")
+        if self._pull:
+            venv.task_source = self
+
+    def next_task(self, index: int) -> np.ndarray:
+        """The teacher's next task for sub-env `index` (pulled at its reset)."""
+        return np.asarray(self.controller.sample_task(), dtype=np.float32)
 
     # -------------------------------------------------------------- queue management
     def _push(self, index: int) -> None:
@@ -173,6 +186,9 @@ class CurriculumVecEnv(VecEnvWrapper):
         self._pending[index] += 1
 
     def reset(self):
+        if self._pull:
+            self._last_obs = self.venv.reset()
+            return self._last_obs
         for i in range(self.num_envs):
             if self._pending[i] == 0:
                 self._push(i)
@@ -194,7 +210,15 @@ class CurriculumVecEnv(VecEnvWrapper):
         except (EOFError, ConnectionError) as exc:  # a worker process died without a traceback
             codes = [p.exitcode for p in getattr(self.venv, "processes", [])]
             raise WorkerError(f"an environment worker process died (exit codes {codes})") from exc
-        raise_worker_errors(infos, "step")
+        if not self._pull:
+            raise_worker_errors(infos, "step")
+            self.episodes_finished(obs, rewards, dones, infos)
+        self._last_obs = obs
+        return obs, rewards, dones, infos
+
+    def episodes_finished(self, obs, rewards, dones, infos) -> None:
+        """A step's book-keeping: step records, finished episodes to the teacher, and (pushing
+        mode) the next task into each finished worker's queue; `obs` before any auto-reset."""
         self.total_steps += self.num_envs
         if self._record_steps:
             for i in range(self.num_envs):
@@ -208,14 +232,13 @@ class CurriculumVecEnv(VecEnvWrapper):
                     worker=i,
                 )
         for i in np.flatnonzero(dones):
-            self._pending[i] -= 1  # the auto-reset consumed the prefetched task
             self._report(int(i), infos[i])
-            self._push(int(i))
+            if not self._pull:
+                self._pending[i] -= 1  # the auto-reset consumed the prefetched task
+                self._push(int(i))
         maybe_sample = getattr(self.controller, "maybe_sample_periodically", None)
         if maybe_sample is not None:
             maybe_sample(self.total_steps)
-        self._last_obs = obs
-        return obs, rewards, dones, infos
 
     def _report(self, worker: int, info: dict) -> None:
         ep = info[INFO_KEY]

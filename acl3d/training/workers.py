@@ -1,8 +1,11 @@
 """Environment factories and worker vector envs for training and evaluation.
 
-Environments are built inside the worker processes from a picklable factory, so SubprocVecEnv
-can use the `forkserver` or `spawn` start methods (`fork` is refused: MuJoCo/OpenGL and torch
-threads do not survive it reliably).
+acl3d envs default to the batched env (`acl3d.envs.batched_sb3.BatchedVecEnv`: all sub-envs in
+this process, physics on one thread per core), or to several worker processes each stepping a
+batched env (`envs_per_worker`). Other Gymnasium ids, and `vec_env="dummy"|"subproc"`, get one
+env per `CurriculumEnv` worker. Environments in worker processes are built from a picklable
+factory, so the `forkserver` or `spawn` start methods work (`fork` is refused: MuJoCo/OpenGL
+and torch threads do not survive it reliably).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from acl3d.training.curriculum import CurriculumEnv
 
-VEC_ENV_KINDS: tuple[str, ...] = ("auto", "dummy", "subproc")
+VEC_ENV_KINDS: tuple[str, ...] = ("auto", "batched", "dummy", "subproc")
 START_METHODS: tuple[str, ...] = ("forkserver", "spawn")
 
 
@@ -61,15 +64,47 @@ def make_vec_env(
     start_method: str = "forkserver",
     render_mode=None,
     curriculum: bool = True,
+    envs_per_worker: int | None = None,
+    threads: int | None = None,
 ) -> VecEnv:
-    """`n_envs` workers (DummyVecEnv in-process, or SubprocVecEnv); `auto` = subproc if n > 1.
+    """`n_envs` envs: `batched` (acl3d ids; `auto` picks it for them), `dummy` or `subproc`.
 
-    With `curriculum=True` each env sits behind a `CurriculumEnv` (training and evaluation);
-    `False` gives plain envs (the no-teacher baseline of the benchmark).
+    Batched: `envs_per_worker=None` (or >= n_envs) keeps all envs in this process with
+    `threads` physics threads (default one per core); a smaller `envs_per_worker` runs
+    ceil(n_envs / envs_per_worker) worker processes of that many envs each (threads split the
+    cores). Other ids under `auto`: DummyVecEnv for one env, else SubprocVecEnv.
+    With `curriculum=True` every reset plays a teacher/test task (`CurriculumEnv` semantics,
+    training and evaluation); `False` gives plain envs (the no-teacher baseline).
     """
     check_vec_env(vec_env, start_method)
-    if n_envs < 1:
-        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+        raise ValueError(f"n_envs={n_envs!r}; valid: an integer >= 1")
+    if envs_per_worker is not None and (
+        isinstance(envs_per_worker, bool)
+        or not isinstance(envs_per_worker, int)
+        or not 1 <= envs_per_worker <= n_envs
+    ):
+        raise ValueError(
+            f"envs_per_worker={envs_per_worker!r}; valid: None or an integer in [1, {n_envs}]"
+        )
+    batchable = _is_acl3d(env_name)
+    if vec_env == "batched" and not batchable:
+        raise ValueError(
+            f"vec_env='batched' needs an acl3d environment, got {env_name!r}; "
+            "valid for other ids: auto, dummy, subproc"
+        )
+    if vec_env == "batched" or (vec_env == "auto" and batchable):
+        return _batched_vec_env(
+            env_name,
+            body,
+            n_envs,
+            env_kwargs,
+            start_method,
+            render_mode,
+            curriculum,
+            envs_per_worker,
+            threads,
+        )
     factory = make_worker_env if curriculum else make_env
     fns = [
         functools.partial(factory, env_name, body, dict(env_kwargs or {}), render_mode)
@@ -78,3 +113,42 @@ def make_vec_env(
     if vec_env == "dummy" or (vec_env == "auto" and n_envs == 1):
         return DummyVecEnv(fns)
     return SubprocVecEnv(fns, start_method=start_method)
+
+
+def _is_acl3d(env_name: str) -> bool:
+    import acl3d.envs
+
+    return env_name in acl3d.envs.ENV_NAMES or env_name in acl3d.envs.ENV_IDS.values()
+
+
+def make_batched_env(env_name, body, n_envs, env_kwargs, render_mode, curriculum, threads):
+    """Factory of one batched env (also run inside worker processes)."""
+    from acl3d.envs.batched_sb3 import BatchedVecEnv
+
+    kwargs = dict(env_kwargs or {})
+    if body is not None:
+        kwargs["body"] = body
+    if render_mode is not None:
+        kwargs["render_mode"] = render_mode
+    return BatchedVecEnv(env_name, n_envs, threads=threads, curriculum=curriculum, **kwargs)
+
+
+def _batched_vec_env(
+    env_name, body, n_envs, env_kwargs, start_method, render_mode, curriculum, per_worker, threads
+) -> VecEnv:
+    if per_worker is None or per_worker >= n_envs:
+        return make_batched_env(
+            env_name, body, n_envs, env_kwargs, render_mode, curriculum, threads
+        )
+    from acl3d.envs.batched import default_threads
+    from acl3d.envs.batched_workers import BatchedSubprocVecEnv
+
+    sizes = [min(per_worker, n_envs - lo) for lo in range(0, n_envs, per_worker)]
+    threads = threads or max(1, default_threads() // len(sizes))
+    factories = [
+        functools.partial(
+            make_batched_env, env_name, body, size, env_kwargs, render_mode, curriculum, threads
+        )
+        for size in sizes
+    ]
+    return BatchedSubprocVecEnv(factories, start_method=start_method)

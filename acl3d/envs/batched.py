@@ -1,0 +1,200 @@
+"""N acl3d environments of one id in one process, stepped together.
+
+`BatchedEnvs` is the engine under the Gymnasium vector env (`acl3d.envs.batched_vector`) and
+the Stable-Baselines3 vec env (`acl3d.envs.batched_sb3`). Each sub-env is a full single env
+(`TrackEnv` / `ParkourEnv`, built by the id's own entry point) with its own model, data, task,
+terrain and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i
+plays. Resets go through the sub-env's own `reset`; steps run the physics of all sub-envs on a
+small pool of long-lived threads (`mj_step` releases the GIL) and, on the tracks, compute
+observation, reward, termination and lidars for all envs at once (`TrackBatch`). Parkour's
+water, creepers and grasps stay per sub-env (its own step code, run on the same threads).
+The time limit is the registered one (TimeLimit semantics: truncated once 2000 steps are played).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import gymnasium as gym
+import numpy as np
+
+from acl3d.envs import env_id as resolve_env_id
+from acl3d.envs.batched_track import TrackBatch
+from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
+
+MAX_ENVS = 4096
+
+
+def default_threads() -> int:
+    """One physics thread per core this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def _check_int(name: str, value, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name}={value!r}; valid: an integer in [{low}, {high}]")
+    if not low <= value <= high:
+        raise ValueError(f"{name}={value!r}; valid: an integer in [{low}, {high}]")
+    return int(value)
+
+
+class BatchedEnvs:
+    """N sub-envs of one registered acl3d id, stepped together (no autoreset: see the wrappers).
+
+    Args:
+        env_id: an acl3d id or short name ("acl3d/StumpTracks-v0", "parkour", ...).
+        num_envs: number of sub-envs, in [1, 4096].
+        threads: physics threads (default: one per core, at most `num_envs`); 1 = no pool.
+        max_episode_steps: the time limit (default: the registered one, 2000).
+        **env_kwargs: constructor arguments of every sub-env (body, planar, ...).
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        threads: int | None = None,
+        max_episode_steps: int | None = None,
+        **env_kwargs,
+    ):
+        num_envs = _check_int("num_envs", num_envs, 1, MAX_ENVS)
+        threads = default_threads() if threads is None else _check_int("threads", threads, 1, 256)
+        self.env_id = resolve_env_id(env_id)
+        if max_episode_steps is None:
+            max_episode_steps = gym.spec(self.env_id).max_episode_steps
+        self.max_episode_steps = _check_int("max_episode_steps", max_episode_steps, 1, 10**9)
+        self.envs = [
+            gym.make(self.env_id, disable_env_checker=True, **env_kwargs).unwrapped
+            for _ in range(num_envs)
+        ]
+        self.num_envs = num_envs
+        e = self.envs[0]
+        self.single_observation_space = e.observation_space
+        self.single_action_space = e.action_space
+        self.action_size = e.action_space.shape[0]
+        self.task_space = e.task_space
+        # tracks: array step; Parkour (water, creepers, grasps): each sub-env's own step code
+        self._batch = TrackBatch(self.envs) if type(e.task) is TrackTask else None
+        self.elapsed = np.zeros(num_envs, dtype=np.int64)
+        self.threads = min(threads, num_envs)
+        bounds = np.linspace(0, num_envs, self.threads + 1).astype(int)
+        self._chunks = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+        self._pool = (
+            ThreadPoolExecutor(self.threads - 1, thread_name_prefix="acl3d-physics")
+            if self.threads > 1
+            else None
+        )
+        self._parkour_out: list = [None] * num_envs
+
+    # ------------------------------------------------------------------ resets
+    def reset_one(self, i: int, seed: int | None = None, options: dict | None = None):
+        """Reset sub-env i through its own `reset` (same RNG stream as a single env)."""
+        obs, info = self.envs[i].reset(seed=seed, options=options)
+        self.elapsed[i] = 0
+        if self._batch is not None:
+            self._batch.pull(i)
+        return obs, info
+
+    def reset(self, seed=None, options=None):
+        """Reset all: `seed` None, an int s (sub-env i gets s + i) or one seed per sub-env;
+        `options` None, one dict for all, or one dict per sub-env. Returns (obs, infos)."""
+        seeds = self.seeds(seed)
+        per_env = self._per_env_options(options)
+        results = [self.reset_one(i, seeds[i], per_env[i]) for i in range(self.num_envs)]
+        return np.stack([r[0] for r in results]), [r[1] for r in results]
+
+    def seeds(self, seed) -> list:
+        n = self.num_envs
+        if seed is None:
+            return [None] * n
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            return [int(seed) + i for i in range(n)]
+        if isinstance(seed, Sequence) and len(seed) == n:
+            for s in seed:
+                if s is not None and (isinstance(s, bool) or not isinstance(s, (int, np.integer))):
+                    raise ValueError(f"seed={seed!r}; valid: None, an int or {n} ints/None")
+            return [None if s is None else int(s) for s in seed]
+        raise ValueError(f"seed={seed!r}; valid: None, an int or a sequence of {n} ints/None")
+
+    def _per_env_options(self, options) -> list:
+        n = self.num_envs
+        if options is None or isinstance(options, Mapping):
+            return [options] * n
+        if isinstance(options, Sequence) and len(options) == n:
+            return list(options)
+        raise ValueError(f"options={options!r}; valid: None, a dict or a sequence of {n} dicts")
+
+    # ------------------------------------------------------------------ steps
+    def check_actions(self, actions) -> np.ndarray:
+        """(N, action_size) float64 copy, or ValueError (nothing changed)."""
+        a = np.asarray(actions)
+        expected = (self.num_envs, self.action_size)
+        if a.shape != expected:
+            raise ValueError(f"actions: expected shape {expected}, got {a.shape}")
+        if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
+            raise ValueError(f"actions: expected real numbers, got dtype {a.dtype}")
+        a = a.astype(np.float64)
+        if not np.isfinite(a).all():
+            bad = sorted({int(i) for i in np.argwhere(~np.isfinite(a))[:, 0]})
+            raise ValueError(f"actions: non-finite values for sub-env(s) {bad}")
+        return a
+
+    def step(self, actions):
+        """(obs, rewards, terminated, truncated, infos list); no reset of finished sub-envs."""
+        a = self.check_actions(actions)
+        if self._batch is not None:
+            self._batch.prepare(a)
+            self._run(self._batch.physics)
+            obs, rewards, terminated, unstable = self._batch.finish(a)
+            success = self._batch.episode_return > SUCCESS_RETURN
+            infos = [{"success": bool(s)} for s in success.tolist()]
+            for i in np.flatnonzero(unstable):
+                infos[i]["unstable"] = True
+        else:
+            self._actions = a
+            self._run(self._parkour_steps)
+            out = self._parkour_out
+            obs = np.stack([o[0] for o in out])
+            rewards = np.array([o[1] for o in out], dtype=np.float64)
+            terminated = np.array([o[2] for o in out], dtype=bool)
+            infos = [o[4] for o in out]
+        self.elapsed += 1
+        truncated = self.elapsed >= self.max_episode_steps
+        return obs, rewards, terminated, truncated, infos
+
+    def _parkour_steps(self, lo: int, hi: int) -> None:
+        for i in range(lo, hi):
+            env, a = self.envs[i], self._actions[i]
+            env._apply_action(a)
+            env.physics.step()
+            self._parkour_out[i] = env._after_physics(a)
+
+    def _run(self, work) -> None:
+        """work(lo, hi) over the chunks: chunk 0 on this thread, the others on the pool."""
+        if self._pool is None:
+            work(0, self.num_envs)
+            return
+        futures = [self._pool.submit(work, lo, hi) for lo, hi in self._chunks[1:]]
+        work(*self._chunks[0])
+        for f in futures:
+            f.result()
+
+    # ------------------------------------------------------------------ sub-env state
+    def sync(self, i: int) -> None:
+        """Bring sub-env i's own attributes up to date (before reading or saving its state)."""
+        if self._batch is not None:
+            self._batch.push(i)
+
+    def restored(self, i: int) -> None:
+        """Sub-env i's state was set on the env itself: take it into the arrays."""
+        if self._batch is not None:
+            self._batch.pull(i)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        for env in self.envs:
+            env.close()

@@ -1,0 +1,211 @@
+"""The batched env as a Stable-Baselines3 `VecEnv`, with per-sub-env curriculum task queues.
+
+SB3 conventions: `reset()` returns observations only (infos in `reset_infos`), finished
+sub-envs reset within the same `step_wait`, with `infos[i]["terminal_observation"]` and
+`infos[i]["TimeLimit.truncated"]`. `env_method`/`get_attr`/`set_attr` (with `indices`) go to
+one `SubEnv` per sub-env, which offers the `CurriculumEnv` worker API (`push_task`,
+`queued_tasks`, `clear_tasks`, `get_state`/`set_state`) and otherwise hands attributes and
+methods to its single env.
+
+Curriculum: a reset that names no task (`set_options`) plays the sub-env's next queued task;
+with `task_source` set (an object with `next_task(i)` and `episodes_finished(obs, rewards,
+dones, infos)`, see `acl3d.training.curriculum.CurriculumVecEnv`), an empty queue pulls the
+next task from it at the sub-env's own reset, after it was handed the step's finished episodes.
+With `curriculum=True` and neither, a reset fails loudly; finished episodes are reported in
+`infos[i]["curriculum"]` and `infos[i]["episode"]` as `CurriculumEnv` does.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from acl3d.envs.batched import BatchedEnvs
+
+INFO_KEY = "curriculum"
+
+
+class SubEnv:
+    """Sub-env i of a `BatchedVecEnv`: task queue, running episode, and its single env."""
+
+    def __init__(self, owner: BatchedVecEnv, index: int):
+        self._owner, self._index = owner, index
+        self.env = owner.batch.envs[index]
+        self.queue: deque[np.ndarray] = deque()
+        self.task = None
+        self.episode_return = 0.0
+        self.initial_obs = None
+        self.last_obs = None
+        self.start_time = 0.0
+
+    # ------------------------------------------------------------------ CurriculumEnv API
+    def push_task(self, task) -> int:
+        self.queue.append(np.array(task, dtype=np.float32).reshape(-1))
+        return len(self.queue)
+
+    def queued_tasks(self) -> int:
+        return len(self.queue)
+
+    def clear_tasks(self) -> None:
+        self.queue.clear()
+
+    def get_state(self) -> dict:
+        """As `CurriculumEnv.get_state`: queue, running episode and the single env's state."""
+        if not hasattr(self.env, "get_state"):
+            raise ValueError(f"{type(self.env).__name__} has no get_state(): cannot checkpoint it")
+        self._owner.batch.sync(self._index)
+        length = int(self._owner.batch.elapsed[self._index])
+        return {
+            "queue": np.array(list(self.queue), dtype=np.float32).reshape(
+                len(self.queue), len(self.env.task_vector)
+            ),
+            "task": None if self.task is None else np.asarray(self.task, dtype=np.float32),
+            "return": self.episode_return,
+            "length": length,
+            "initial_obs": self.initial_obs,
+            "last_obs": self.last_obs,
+            "wrappers": [{"_elapsed_steps": length}],
+            "env": self.env.get_state(),
+        }
+
+    def set_state(self, state: dict) -> None:
+        self.env.set_state(state["env"])
+        batch = self._owner.batch
+        batch.restored(self._index)
+        self.queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
+        self.task = None if state["task"] is None else np.asarray(state["task"], np.float32)
+        self.episode_return = float(state["return"])
+        batch.elapsed[self._index] = int(state["length"])
+        self.initial_obs, self.last_obs = state["initial_obs"], state["last_obs"]
+
+    # ------------------------------------------------------------------ the single env
+    def __getattr__(self, name):
+        if name.startswith("__") or name == "env":
+            raise AttributeError(name)
+        self._owner.batch.sync(self._index)
+        return getattr(self.env, name)
+
+    def reset(self, seed=None, options=None):
+        """Start an episode: the task from `options`, else the queue, else the task source."""
+        owner = self._owner
+        options = dict(options or {})
+        if "task" not in options:
+            if self.queue:
+                options["task"] = self.queue.popleft()
+            elif owner.task_source is not None:
+                options["task"] = np.asarray(owner.task_source.next_task(self._index), np.float32)
+            elif owner.curriculum:
+                raise RuntimeError(
+                    f"sub-env {self._index}: no task queued and no task source; push_task() "
+                    "before every reset that does not pass options={'task': ...}"
+                )
+        obs, info = owner.batch.reset_one(self._index, seed, options)
+        self.task = options.get("task", self.env.task_vector)
+        self.episode_return = 0.0
+        self.initial_obs = self.last_obs = obs
+        self.start_time = time.perf_counter()
+        return obs, info
+
+    def episode_report(self, info: dict, terminated: bool, truncated: bool) -> None:
+        """Add the finished episode to its last step's info, as `CurriculumEnv` does."""
+        length = int(self._owner.batch.elapsed[self._index])
+        task = self.task
+        info[INFO_KEY] = {
+            "task": task if isinstance(task, dict) else np.asarray(task, dtype=np.float32),
+            "return": self.episode_return,
+            "length": length,
+            "success": bool(info.get("success", False)),
+            "truncated": bool(truncated and not terminated),
+            "initial_obs": self.initial_obs,
+        }
+        elapsed = round(time.perf_counter() - self.start_time, 6)
+        info["episode"] = {"r": self.episode_return, "l": length, "t": elapsed}
+
+
+class BatchedVecEnv(VecEnv):
+    """N acl3d envs of one id in this process, as an SB3 VecEnv (see the module docstring).
+
+    Args:
+        env_id, num_envs, threads, max_episode_steps, **env_kwargs: as `BatchedEnvs`.
+        curriculum: every reset needs a task (queued, pulled from `task_source`, or in the
+            reset options), as behind `CurriculumEnv`; False plays the env's current task.
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        threads: int | None = None,
+        curriculum: bool = False,
+        max_episode_steps: int | None = None,
+        **env_kwargs,
+    ):
+        self.batch = BatchedEnvs(env_id, num_envs, threads, max_episode_steps, **env_kwargs)
+        self.subenvs = [SubEnv(self, i) for i in range(self.batch.num_envs)]
+        super().__init__(
+            self.batch.num_envs, self.batch.single_observation_space, self.batch.single_action_space
+        )
+        self.curriculum = bool(curriculum)
+        self.task_source = None
+        self._actions = None
+
+    def reset(self):
+        seeds, options = self.batch.seeds(self._seeds), self._options
+        results = [s.reset(seeds[i], options[i]) for i, s in enumerate(self.subenvs)]
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [info for _, info in results]
+        return np.stack([obs for obs, _ in results])
+
+    def step_async(self, actions) -> None:
+        self._actions = self.batch.check_actions(actions)
+
+    def step_wait(self):
+        if self._actions is None:
+            raise RuntimeError("step_wait() without step_async()")
+        actions, self._actions = self._actions, None
+        obs, rewards, terminated, truncated, infos = self.batch.step(actions)
+        dones = terminated | truncated
+        subenvs = self.subenvs
+        for i, r in enumerate(rewards.tolist()):
+            subenvs[i].episode_return += r
+        for i in np.flatnonzero(dones):
+            info = infos[i]
+            info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+            info["terminal_observation"] = obs[i].copy()
+            subenvs[i].episode_report(info, bool(terminated[i]), bool(truncated[i]))
+        if self.task_source is not None:
+            self.task_source.episodes_finished(obs, rewards, dones, infos)
+        for i in np.flatnonzero(dones):
+            obs[i] = subenvs[i].reset()[0]
+        for i, s in enumerate(subenvs):
+            s.last_obs = obs[i]
+        return obs, rewards.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        self.batch.close()
+
+    # ------------------------------------------------------------------ dispatch
+    def get_attr(self, attr_name, indices=None):
+        return [getattr(self.subenvs[i], attr_name) for i in self._get_indices(indices)]
+
+    def set_attr(self, attr_name, value, indices=None) -> None:
+        for i in self._get_indices(indices):
+            self.batch.sync(i)
+            setattr(self.subenvs[i].env, attr_name, value)
+            self.batch.restored(i)
+
+    def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
+        return [
+            getattr(self.subenvs[i], method_name)(*method_args, **method_kwargs)
+            for i in self._get_indices(indices)
+        ]
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        return [s.env.render() for s in self.subenvs]
