@@ -133,6 +133,24 @@ def test_evaluate_cli_on_run_dir(trained_run, tmp_path, capsys):
     assert len(rows["return"]) == 4 and all(length <= 60 for length in rows["length"])
 
 
+def test_evaluate_reproduces_the_runs_last_evaluation(trained_run, tmp_path, capsys):
+    """By default: the run's test set, evaluation seed, eval envs and action mode."""
+    own = read_csv(RunDir(trained_run).evals_tasks_csv)
+    last = [i for i, step in enumerate(own["step"]) if step == 1024]
+    out = tmp_path / "eval.csv"
+    assert main(["evaluate", str(trained_run), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    seed = TrainConfig().seed + 7919
+    assert f"step 1024) on the run's test set (4 tasks x 1), seed {seed}, 2 envs" in printed
+    assert "deterministic actions" in printed and "the run's own evaluation at step 1024" in printed
+    rows = read_csv(out)
+    assert rows["return"] == [own["return"][i] for i in last]
+    assert rows["length"] == [own["length"][i] for i in last]
+    assert main(["evaluate", str(trained_run), "--seed", "5", "--out", str(out)]) == 0
+    assert "seed 5," in capsys.readouterr().out
+    assert read_csv(out)["return"] != [own["return"][i] for i in last]
+
+
 def test_report_writes_plots_and_video(trained_run, tmp_path):
     out = tmp_path / "report"
     rc = main(

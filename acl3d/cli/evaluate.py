@@ -1,10 +1,23 @@
-"""`acl3d evaluate RUN_DIR|MODEL.zip`: % mastered and mean return of a policy on a test set."""
+"""`acl3d evaluate RUN_DIR|MODEL.zip`: % mastered and mean return of a policy on a test set.
+
+On a run directory the defaults reproduce the run's own last evaluation exactly: its test set,
+its evaluation seed, its number of evaluation envs and its deterministic/stochastic choice
+(`--seed`, `--n-envs`, `--test-set`, `--stochastic/--deterministic` vary them).
+"""
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
+import zipfile
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
+
+BARE_ZIP_SEED = 0
+BARE_ZIP_ENVS = 2
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -25,35 +38,94 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", help="track (default: the run's; required for a bare model zip)")
     p.add_argument("--body", help="embodiment (default: the run's, else classic_bipedal)")
     p.add_argument(
-        "--n-envs", type=int, default=2, help="parallel evaluation environments (default 2)"
+        "--n-envs",
+        type=int,
+        help=f"parallel evaluation environments (default: the run's, else {BARE_ZIP_ENVS}); the "
+        "split of test tasks over envs changes the environment noise each task sees",
+    )
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--stochastic",
+        dest="deterministic",
+        action="store_false",
+        default=None,
+        help="sample actions (default: as the run evaluated, else the mean action)",
+    )
+    mode.add_argument(
+        "--deterministic", dest="deterministic", action="store_true", help="use the mean action"
     )
     p.add_argument(
-        "--stochastic", action="store_true", help="sample actions instead of using the mean"
+        "--seed",
+        type=int,
+        help=f"seed of the evaluation envs (default: the run's evaluation seed, else {BARE_ZIP_SEED})",
     )
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="write one CSV row per test episode here")
 
 
-def resolve_target(target, env: str | None, body: str | None):
-    """(model path, env name, body, env kwargs, run's test tasks or None) for a run dir or zip."""
+@dataclass
+class Target:
+    """What to evaluate and the settings the run itself evaluated with (None for a bare zip)."""
+
+    model: Path
+    env: str
+    body: str
+    env_kwargs: dict
+    tasks: np.ndarray | None
+    seed: int
+    n_envs: int
+    deterministic: bool
+    run_dir: Path | None = None
+
+
+def resolve_target(target, env: str | None, body: str | None) -> Target:
+    """The model, env and the run's own evaluation settings for a run dir or a bare zip."""
+    from acl3d.training import TrainConfig
     from acl3d.training.run_dir import RunDir
 
     path = Path(target)
     if path.is_dir():
         run = RunDir(path)
-        config = run.read_config()
-        return (
+        config = TrainConfig.from_dict(run.read_config())
+        return Target(
             run.best_model(),
-            env or config["env"],
-            body or config["body"],
-            config.get("env_kwargs") or {},
+            env or config.env,
+            body or config.body,
+            dict(config.env_kwargs),
             run.test_tasks(),
+            config.eval_seed,
+            config.effective_eval_envs,
+            not config.eval_stochastic,
+            run.path,
         )
     if path.suffix != ".zip" or not path.exists():
         raise ValueError(f"{target!r} is neither a run directory nor an existing model .zip")
     if env is None:
         raise ValueError("--env is required when evaluating a bare model zip")
-    return path, env, body or "classic_bipedal", {}, None
+    return Target(
+        path, env, body or "classic_bipedal", {}, None, BARE_ZIP_SEED, BARE_ZIP_ENVS, True
+    )
+
+
+def model_step(path: Path) -> int | None:
+    """The training step an SB3 zip was saved at (from its own metadata)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return int(json.loads(z.read("data"))["num_timesteps"])
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+
+
+def run_evaluation_at(run_dir: Path, step: int | None) -> dict | None:
+    """The run's own evals.csv row for `step`, if it evaluated there."""
+    from acl3d.training.run_dir import RunDir, read_csv
+
+    evals = RunDir(run_dir).evals_csv
+    cols = read_csv(evals) if evals.exists() else {}
+    steps = cols.get("step") or []
+    if step is None or float(step) not in steps:
+        return None
+    i = len(steps) - 1 - steps[::-1].index(float(step))
+    return {k: v[i] for k, v in cols.items()}
 
 
 def run(args) -> int:
@@ -62,43 +134,45 @@ def run(args) -> int:
     from acl3d.training.workers import make_env
 
     for name in ("episodes", "n_envs", "nb_test_episodes"):
-        if getattr(args, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    model, env_name, body, env_kwargs, run_tasks = resolve_target(args.target, args.env, args.body)
-    probe = make_env(env_name, body, env_kwargs)  # also checks the env and body names
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    t = resolve_target(args.target, args.env, args.body)
+    probe = make_env(t.env, t.body, t.env_kwargs)  # also checks the env and body names
     try:
         space = probe.unwrapped.task_space
         profile = getattr(probe.unwrapped, "curriculum_profile", None)
     finally:
         probe.close()
-    if args.test_set is None and run_tasks is not None:
-        tasks = run_tasks
+    if args.test_set is None and t.tasks is not None:
+        tasks, test_set = t.tasks, "the run's test set"
     else:
         tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes, profile)
+        test_set = f"test set {args.test_set or 'default'}"
+    seed = t.seed if args.seed is None else args.seed
+    n_envs = t.n_envs if args.n_envs is None else args.n_envs
+    deterministic = t.deterministic if args.deterministic is None else args.deterministic
+    step = model_step(t.model)
+    print(
+        f"evaluating {t.model} (step {step}) on {test_set} ({len(tasks)} tasks x {args.episodes}), "
+        f"seed {seed}, {n_envs} envs, {'deterministic' if deterministic else 'stochastic'} actions"
+    )
     names = space.flat_names() if space.dim == tasks.shape[1] else range(tasks.shape[1])
     result = evaluate_saved_model(
-        model,
-        env_name,
-        body,
+        t.model,
+        t.env,
+        t.body,
         tasks,
-        env_kwargs=env_kwargs,
-        n_envs=args.n_envs,
-        deterministic=not args.stochastic,
-        seed=args.seed,
+        env_kwargs=t.env_kwargs,
+        n_envs=n_envs,
+        deterministic=deterministic,
+        seed=seed,
         episodes_per_task=args.episodes,
     )
     if args.out:
         with open(args.out, "w", newline="") as f:
             writer = csv.writer(f)
-            writer.writerow(
-                [
-                    "task_index",
-                    "return",
-                    "length",
-                    "success",
-                    *names,
-                ]
-            )
+            writer.writerow(["task_index", "return", "length", "success", *names])
             for i, (task, ret, length, ok) in enumerate(
                 zip(result.tasks, result.returns, result.lengths, result.successes)
             ):
@@ -107,8 +181,14 @@ def run(args) -> int:
                 )
     s = result.summary()
     print(
-        f"{model}: {s['n_tasks']} test episodes on {env_name} ({body}): "
+        f"{t.model}: {s['n_tasks']} test episodes on {t.env} ({t.body}): "
         f"{s['mastered_pct']:.1f}% mastered (return > 230), mean return {s['mean_return']:.1f} "
         f"+- {s['std_return']:.1f}, mean length {s['mean_length']:.0f}"
     )
+    own = run_evaluation_at(t.run_dir, step) if t.run_dir is not None else None
+    if own is not None:
+        print(
+            f"the run's own evaluation at step {step}: {own['mastered_pct']:.1f}% mastered, "
+            f"mean return {own['mean_return']:.1f} (the same when every setting above is the run's)"
+        )
     return 0
