@@ -232,7 +232,7 @@ CONSTRUCTOR_ARGS = {
     "width": st.one_of(NOT_A_NUMBER, st.integers(-5, 0), st.integers(8193, 10**5)),
     "height": st.one_of(NOT_A_NUMBER, st.floats(1, 100)),
     "quality": st.one_of(st.text(max_size=5), st.integers()),
-    "render_mode": st.one_of(st.text(max_size=5).filter(lambda m: m != "rgb_array")),
+    "render_mode": st.text(max_size=5).filter(lambda m: m not in ("rgb_array", "human")),
     "planar": st.one_of(st.text(max_size=5), st.integers(0, 1)),
     "input_space": st.one_of(st.text(max_size=5), st.none()),
     "end_on_death": st.one_of(st.text(max_size=5), st.integers(0, 1), st.none()),
