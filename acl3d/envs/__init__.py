@@ -2,36 +2,53 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import gymnasium as gym
 
 MAX_EPISODE_STEPS = 2000  # the students' cut in TeachMyAgent (40 s at 50 Hz), a truncation
 
-ENV_IDS: dict[str, str] = {
-    "stump-tracks": "acl3d/StumpTracks-v0",
-    "hexagon-tracks": "acl3d/HexagonTracks-v0",
-    "parkour": "acl3d/Parkour-v0",
-}
-ENV_NAMES: tuple[str, ...] = tuple(ENV_IDS)
 
-_ENTRY_POINTS = {
-    "acl3d/StumpTracks-v0": ("acl3d.envs.track_env:TrackEnv", {"track": "stump"}),
-    "acl3d/HexagonTracks-v0": ("acl3d.envs.track_env:TrackEnv", {"track": "hexagon"}),
-    "acl3d/Parkour-v0": ("acl3d.envs.parkour_env:ParkourEnv", {}),
-}
-# gymnasium.make_vec(id, num_envs, vectorization_mode="vector_entry_point"): the batched env
-_VECTOR_ENTRY_POINTS = {
-    "acl3d/StumpTracks-v0": "acl3d.envs.batched_vector:stump_tracks",
-    "acl3d/HexagonTracks-v0": "acl3d.envs.batched_vector:hexagon_tracks",
-    "acl3d/Parkour-v0": "acl3d.envs.batched_vector:parkour",
-}
+class Registration(NamedTuple):
+    """How one environment is registered with Gymnasium."""
 
-for _id, (_entry, _kwargs) in _ENTRY_POINTS.items():
-    if _id not in gym.registry:
+    id: str  # the Gymnasium id
+    entry_point: str  # "module:Class" of the single env
+    kwargs: dict  # constructor arguments the id fixes
+    vector_entry_point: str | None = None  # `gymnasium.make_vec(..., "vector_entry_point")`
+
+
+# short name -> registration: adding an environment is one line here
+REGISTRY: dict[str, Registration] = {
+    "stump-tracks": Registration(
+        "acl3d/StumpTracks-v0",
+        "acl3d.envs.track_env:TrackEnv",
+        {"track": "stump"},
+        "acl3d.envs.batched_vector:stump_tracks",
+    ),
+    "hexagon-tracks": Registration(
+        "acl3d/HexagonTracks-v0",
+        "acl3d.envs.track_env:TrackEnv",
+        {"track": "hexagon"},
+        "acl3d.envs.batched_vector:hexagon_tracks",
+    ),
+    "parkour": Registration(
+        "acl3d/Parkour-v0",
+        "acl3d.envs.parkour_env:ParkourEnv",
+        {},
+        "acl3d.envs.batched_vector:parkour",
+    ),
+}
+ENV_IDS: dict[str, str] = {name: reg.id for name, reg in REGISTRY.items()}
+ENV_NAMES: tuple[str, ...] = tuple(REGISTRY)
+
+for _reg in REGISTRY.values():
+    if _reg.id not in gym.registry:
         gym.register(
-            id=_id,
-            entry_point=_entry,
-            vector_entry_point=_VECTOR_ENTRY_POINTS[_id],
-            kwargs=_kwargs,
+            id=_reg.id,
+            entry_point=_reg.entry_point,
+            vector_entry_point=_reg.vector_entry_point,
+            kwargs=_reg.kwargs,
             max_episode_steps=MAX_EPISODE_STEPS,
         )
 
