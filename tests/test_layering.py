@@ -3,7 +3,7 @@
 Every `import` counts, including those inside functions (lazy imports hide a dependency, they do
 not remove it). A module may import from its own package or from a lower tier only; packages in
 the same tier are independent of each other (teachers, terrain and bodies never import one
-another). A new top-level module or package must be given a tier here.
+another). A new top-level module or package that imports from acl3d must be given a tier here.
 """
 
 from __future__ import annotations
@@ -83,8 +83,15 @@ def component(module: str) -> str:
     return parts[1] if len(parts) > 1 else parts[0]
 
 
-def test_every_component_has_a_tier():
-    missing = sorted({component(m) for m in MODULES} - set(TIER))
+def test_every_component_that_imports_acl3d_has_a_tier():
+    """A leaf (a module importing nothing from acl3d) may go unlisted: anything may import it."""
+    missing = sorted(
+        {
+            component(m)
+            for m, targets in GRAPH.items()
+            if component(m) not in TIER and any(component(t) != component(m) for t in targets)
+        }
+    )
     assert not missing, f"give these top-level modules a tier in tests/test_layering.py: {missing}"
 
 
