@@ -90,8 +90,7 @@ BUILDABLE = {
 
 def parkour_task_space(input_space: str = "medium") -> TaskSpace:
     """The 8-D Parkour task space (input_vector x3, water, creepers x3, scale) of the benchmark."""
-    if input_space not in INPUT_SPACES:
-        raise ValueError(f"input_space={input_space!r}; valid: {list(INPUT_SPACES)}")
+    validation.choice("input_space", input_space, list(INPUT_SPACES))
     low, high = INPUT_SPACES[input_space]
     centre = tuple((a + b) / 2 for a, b in zip(low, high))
     inputs = TaskParameter(

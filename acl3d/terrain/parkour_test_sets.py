@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.task_space import TaskSpace
 from acl3d.terrain.parkour import parkour_task_space
 
@@ -40,8 +41,7 @@ def build(name: str, task_space: TaskSpace | None = None, nb_tasks: int = NB_TAS
         raise ValueError(
             f"unknown Parkour test set {name!r}; valid: {list(SEEDS)} or {list(ALIASES)}"
         )
-    if nb_tasks < 2:
-        raise ValueError(f"nb_tasks={nb_tasks}; valid: an integer >= 2")
+    validation.integer("nb_tasks", nb_tasks, 2)
     space = task_space or parkour_task_space("medium")
     rng = np.random.default_rng(SEEDS[name])
     tasks = _in_bounds(space, rng, nb_tasks)
