@@ -38,6 +38,14 @@ def require_offscreen_gl() -> None:
         _missing(f"no display and no EGL/OSMesa library: apt-get install {packages}")
 
 
+def require_program(program: str, package: str) -> None:
+    """Skip (or fail) unless `program` is on PATH."""
+    import shutil
+
+    if shutil.which(program) is None:
+        _missing(f"{program} is missing: apt-get install {package}")
+
+
 def run_checked(proc_args, **kwargs):
     """subprocess.run that fails with the child's stderr, so pytest shows why it failed."""
     import subprocess

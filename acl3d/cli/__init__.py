@@ -11,7 +11,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("acl3d.cli.train", "train a student with a teacher's curriculum on a track"),
     "evaluate": ("acl3d.cli.evaluate", "evaluate a trained policy on a test set"),
     "report": ("acl3d.cli.report", "write plots and a video for a run directory"),
-    "render": ("acl3d.cli.render", "render rollouts of a track to mp4/gif"),
+    "render": (
+        "acl3d.cli.render",
+        "videos (mp4/gif) or PNG strips of a trained, compared or random policy, labelled",
+    ),
+    "view": ("acl3d.cli.view", "watch a policy in MuJoCo's interactive viewer (needs a display)"),
     "toy": ("acl3d.cli.toy", "run a teacher on teachDeepRL's toy environment"),
     "campaign": ("acl3d.cli.campaign", "benchmark campaigns: many runs on Ray or local processes"),
     "analyze": ("acl3d.cli.analyze", "statistics, figures and a report for a campaign's runs"),

@@ -85,7 +85,7 @@ def _check_counts(args) -> None:
         raise ValueError("--task and --test-set are exclusive: give tasks one way")
 
 
-def _source(target, args):
+def resolve_source(target, args):
     """(model path or None, env name, body, env kwargs, run test tasks, cell title)."""
     from acl3d.cli.evaluate import resolve_target
 
@@ -127,7 +127,7 @@ def _tasks(env, args, run_tasks) -> list:
     return [space.to_vector({})] * args.episodes
 
 
-def _policy(model, env, args):
+def make_policy(model, env, args):
     from acl3d.training.trained_policy import TrainedPolicy
 
     if model is None:
@@ -156,9 +156,9 @@ def run(args: argparse.Namespace) -> int:
     players, tasks = [], None
     try:
         for target in targets:
-            model, env_name, body, env_kwargs, run_tasks, title = _source(target, args)
+            model, env_name, body, env_kwargs, run_tasks, title = resolve_source(target, args)
             env = _make_env(env_name, body, env_kwargs, args)
-            policy, label = _policy(model, env, args)
+            policy, label = make_policy(model, env, args)
             players.append(EpisodePlayer(env, policy, title or label, not args.no_overlay))
             if tasks is None:
                 tasks = _tasks(env, args, run_tasks)

@@ -30,6 +30,7 @@ from acl3d.terrain.tracks import (
     check_buildable,
     track_task_space,
 )
+from acl3d.viewer import HumanViewer, check_display
 
 TRACKS = {
     "stump": ("stump_height", "obstacle_spacing"),
@@ -58,7 +59,7 @@ class TrackEnv(gym.Env):
     exactly (see `acl3d.envs.env_state`).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 50}
 
     def __init__(
         self,
@@ -76,6 +77,8 @@ class TrackEnv(gym.Env):
     ):
         validation.choice("track", track, list(TRACKS))
         validation.choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
+        if render_mode == "human":
+            check_display()  # a headless machine fails here, not at the first render
         validation.choice("quality", quality, ("fast", "high"))
         validation.integer("width", width, 1, MAX_IMAGE_SIZE)
         validation.integer("height", height, 1, MAX_IMAGE_SIZE)
@@ -140,6 +143,7 @@ class TrackEnv(gym.Env):
             width=width, height=height, camera=camera or self.arena.camera, quality=quality
         )
         self._renderer: TrackRenderer | None = None
+        self._viewer: HumanViewer | None = None
 
     # ------------------------------------------------------------------ construction hooks
     def _make_task_space(self, task_parameters) -> TaskSpace:
@@ -306,12 +310,16 @@ class TrackEnv(gym.Env):
         )  # the original returns the obs after one idle step
         self.physics.step()
         obs = self.task.reset(self.model, self.data)
+        if self.render_mode == "human":
+            self.render()
         return obs, self._info(False)
 
     def step(self, action):
         action = validation.real_array("action", action, shape=(self.body.action_size,))
         self._apply_action(action)
         self.physics.step()
+        if self.render_mode == "human":
+            self.render()
         return self._after_physics(action)
 
     def _after_physics(self, action: np.ndarray):
@@ -324,6 +332,13 @@ class TrackEnv(gym.Env):
         return obs, reward, terminated, False, self._info(unstable)
 
     def render(self):
+        if self.render_mode == "human":  # MuJoCo's interactive viewer, paced to render_fps
+            if self._viewer is None:
+                self._viewer = HumanViewer(
+                    self.model, self.data, self._render_args["camera"], self.metadata["render_fps"]
+                )
+            self._viewer.sync(self.arena.hfield_ids, self.arena.version)
+            return None
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
@@ -333,6 +348,9 @@ class TrackEnv(gym.Env):
         return self._renderer.render(self.data)
 
     def close(self):
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
