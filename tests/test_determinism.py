@@ -68,3 +68,37 @@ def test_seed_or_task_changes_the_terrain():
     assert not np.array_equal(env.arena.heights, base)
     env.reset(seed=1, options={"task": TASK})
     assert np.array_equal(env.arena.heights, base)
+
+
+def play_hash(env, steps: int = 150) -> str:
+    h = hashlib.sha256()
+    for a in np.random.default_rng(5).uniform(-1, 1, (steps, env.action_space.shape[0])):
+        obs, reward, terminated, truncated, _ = env.step(a)
+        h.update(obs.tobytes())
+        h.update(np.float64(reward).tobytes())
+        h.update(bytes([terminated, truncated]))
+    return h.hexdigest()
+
+
+def continue_from(state: dict) -> str:
+    """What a fresh Parkour env plays after restoring `state` (run in another process)."""
+    import acl3d  # noqa: F401
+    from acl3d.envs.env_state import set_env_state
+
+    env = gym.make("acl3d/Parkour-v0", body="fish")
+    env.reset(seed=0)
+    set_env_state(env, state)
+    return play_hash(env)
+
+
+def test_a_saved_state_continues_identically_in_another_process():
+    from acl3d.envs.env_state import get_env_state
+
+    env = gym.make("acl3d/Parkour-v0", body="fish")
+    env.reset(seed=4, options={"task": {"water_level": 0.7}})
+    for a in np.random.default_rng(6).uniform(-1, 1, (40, env.action_space.shape[0])):
+        env.step(a)
+    state = get_env_state(env)
+    with mp.get_context("spawn").Pool(1) as pool:
+        other = pool.apply(continue_from, (state,))
+    assert other == play_hash(env)
