@@ -118,7 +118,8 @@ def test_every_environment_declares_its_curriculum_profile(name, tmp_path):
     assert profile.success_return == 230.0 and profile.adr_reward_thresholds == (0.0, 180.0)
     c = TeacherController("random", space, 0, profile=profile)
     c.dump(tmp_path / "dump")
-    assert json.loads((tmp_path / "dump.json").read_text())["env_name"] == name
+    dump = json.loads((tmp_path / "dump.json").read_text())
+    assert dump["env_name"] == name and dump["success_return"] == 230.0
 
 
 def test_curriculum_profiles_reject_bad_facts():

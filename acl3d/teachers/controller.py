@@ -254,6 +254,7 @@ class TeacherController:
             "high": self.task_space.high,
             "scale_reward": self.scale_reward,
             "reward_bounds": list(self.reward_bounds),
+            "success_return": self.profile.success_return,  # what train_success means
             "shuffled": self.shuffler is not None,
             "test_tasks": self._test_tasks,
             **self._record_arrays(),
