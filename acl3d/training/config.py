@@ -164,6 +164,10 @@ def validate(config: TrainConfig) -> None:
         value = getattr(config, name)
         if value is not None and (not isinstance(value, str) or not value):
             raise check.fail(name, value, "a path (non-empty string) or None")
+    if config.envs_per_worker is not None and config.envs_per_worker > config.n_envs:
+        raise check.fail(
+            "envs_per_worker", config.envs_per_worker, f"None or an integer in [1, {config.n_envs}]"
+        )
     if config.reset_student_every and config.reset_student_every >= config.steps:
         raise ValueError(
             f"reset_student_every ({config.reset_student_every}) must be < steps ({config.steps}), "

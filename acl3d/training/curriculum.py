@@ -25,8 +25,10 @@ from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.wrappers import PassiveEnvChecker
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from acl3d.envs import env_state
 from acl3d.envs.track_task import SUCCESS_RETURN as SUCCESS_THRESHOLD
 
 INFO_KEY = "curriculum"
@@ -133,10 +135,46 @@ class CurriculumEnv(gym.Wrapper):
             info["episode"] = {"r": self._return, "l": self._length, "t": round(elapsed, 6)}
         return obs, reward, terminated, truncated, info
 
+    def get_state(self) -> dict:
+        """Queue, running episode and the wrapped env's state (`acl3d.envs.env_state.get_env_state`:
+        its `get_state()` plus Gymnasium's wrapper counters): what a checkpoint needs to continue
+        this worker's episode exactly. JSON scalars and numpy arrays; `"env"` is None for an env
+        without `get_state()` (its episode then cannot be continued)."""
+        has_state = hasattr(self.env.unwrapped, "get_state")
+        return {
+            "queue": np.stack(self._queue) if self._queue else np.zeros((0, 0), np.float32),
+            "task": None if self._task is None else np.asarray(self._task, dtype=np.float32),
+            "return": self._return,
+            "length": self._length,
+            "initial_obs": self._initial_obs,
+            "last_obs": self._last_obs,
+            "env": env_state.get_env_state(self.env) if has_state else None,
+        }
+
+    def set_state(self, state: dict) -> None:
+        """Inverse of `get_state()` (on a worker built with the same arguments)."""
+        if state["env"] is not None:
+            env_state.set_env_state(self.env, state["env"])
+            _skip_passive_checks(self.env)
+        self._queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
+        self._task = None if state["task"] is None else np.asarray(state["task"], np.float32)
+        self._return, self._length = float(state["return"]), int(state["length"])
+        self._initial_obs, self._last_obs = state["initial_obs"], state["last_obs"]
+        self._error = None
+
     def _placeholder_obs(self):
         if self._last_obs is not None:
             return self._last_obs
         return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
+
+
+def _skip_passive_checks(env) -> None:
+    """Gymnasium's PassiveEnvChecker checks the first reset and steps against each other; a
+    restored env had those long ago (and the checker's reference data is not state)."""
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, PassiveEnvChecker):
+            env.checked_reset = env.checked_step = env.checked_data_reuse = True
+        env = env.env
 
 
 def raise_worker_errors(infos, where: str) -> None:
@@ -258,6 +296,32 @@ class CurriculumVecEnv(VecEnvWrapper):
                 total_steps=self.total_steps,
             )
         )
+
+    def get_state(self) -> dict:
+        """Counters, prefetch book-keeping and every worker's `get_state()` (for checkpoints;
+        episodes not yet popped with `pop_finished` are not part of it)."""
+        return {
+            "total_steps": self.total_steps,
+            "episodes_done": self.episodes_done,
+            "pending": self._pending.copy(),
+            "last_obs": self._last_obs,
+            "workers": self.venv.env_method("get_state"),
+        }
+
+    def set_state(self, state: dict) -> None:
+        """Inverse of `get_state()` on a vec env with the same number of workers."""
+        workers = state["workers"]
+        if len(workers) != self.num_envs:
+            raise ValueError(
+                f"state holds {len(workers)} workers; this vec env has {self.num_envs}"
+            )
+        for i, worker in enumerate(workers):
+            self.venv.env_method("set_state", worker, indices=[i])
+        self.total_steps = int(state["total_steps"])
+        self.episodes_done = int(state["episodes_done"])
+        self._pending = np.asarray(state["pending"], dtype=np.int64).copy()
+        self._last_obs = state["last_obs"]
+        self._finished = []
 
     def pop_finished(self) -> list[Episode]:
         """Episodes finished since the last call (for logging), oldest first."""

@@ -85,7 +85,15 @@ class Session:
 
     def _vec_env(self, n_envs: int):
         c = self.config
-        return make_vec_env(c.env, c.body, n_envs, c.env_kwargs, c.vec_env, c.start_method)
+        return make_vec_env(
+            c.env,
+            c.body,
+            n_envs,
+            c.env_kwargs,
+            c.vec_env,
+            c.start_method,
+            envs_per_worker=None if c.envs_per_worker is None else min(c.envs_per_worker, n_envs),
+        )
 
     def __enter__(self):
         self.curriculum_env = CurriculumVecEnv(self._vec_env(self.config.n_envs), self.controller)
