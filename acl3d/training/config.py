@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from acl3d import validation as check
+from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
 from acl3d.training import students
 from acl3d.training.workers import check_vec_env
 
 DEFAULT_N_ENVS = 1  # training envs when none are asked for (one place, chosen by the lead)
-EXPERT_KNOWLEDGE: tuple[str, ...] = ("no", "low", "high")
 TEACHMYAGENT_EVAL_EVERY = 500_000
 MIN_DEFAULT_EVAL_EVERY = 50_000
 TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
