@@ -28,7 +28,7 @@ TestSetBuilder = Callable[[TaskSpace, int], np.ndarray]
 
 
 def _pair(name: str, value, strictly_increasing: bool) -> tuple[float, float]:
-    if not isinstance(value, (tuple, list)) or len(value) != 2:
+    if not isinstance(value, (tuple, list, np.ndarray)) or len(value) != 2:
         raise validation.fail(name, value, "a pair (lower, upper) of finite numbers")
     lo, hi = validation.real(f"{name}[0]", value[0]), validation.real(f"{name}[1]", value[1])
     if hi < lo or (strictly_increasing and hi == lo):
@@ -72,13 +72,17 @@ class CurriculumProfile:
         set_(self, "adr_reward_thresholds", thresholds)
         if self.initial_dist is not None and not callable(self.initial_dist):
             raise validation.fail("initial_dist", self.initial_dist, "a callable or None")
-        bad = [
-            k for k, v in dict(self.test_sets).items() if not isinstance(k, str) or not callable(v)
-        ]
-        if bad:
-            raise validation.fail("test_sets", bad, "names (str) mapped to builders (callables)")
-        set_(self, "test_sets", MappingProxyType(dict(self.test_sets)))
+        sets = self.test_sets
+        if not isinstance(sets, Mapping) or not all(
+            isinstance(k, str) and callable(v) for k, v in sets.items()
+        ):
+            raise validation.fail("test_sets", sets, "a mapping of names (str) to builders")
+        set_(self, "test_sets", MappingProxyType(dict(sets)))
         if self.default_test_grid is not None:
+            if not isinstance(self.default_test_grid, Mapping):
+                raise validation.fail(
+                    "default_test_grid", self.default_test_grid, "None or {parameter: (min, max)}"
+                )
             grid = {
                 str(k): _pair(f"default_test_grid[{k!r}]", v, True)
                 for k, v in dict(self.default_test_grid).items()

@@ -130,8 +130,12 @@ def test_curriculum_profiles_reject_bad_facts():
         CurriculumProfile(adr_reward_thresholds=(180.0, 0.0))
     with pytest.raises(ValueError, match="success_return"):
         CurriculumProfile(success_return=True)
-    with pytest.raises(ValueError, match="test_sets"):
-        CurriculumProfile(test_sets={"walking": [[0.0]]})
+    for bad in ({"walking": [[0.0]]}, ["walking"]):
+        with pytest.raises(ValueError, match="test_sets"):
+            CurriculumProfile(test_sets=bad)
+    with pytest.raises(ValueError, match="default_test_grid"):
+        CurriculumProfile(default_test_grid={"stump_height": (3.0, 0.0)})
+    assert CurriculumProfile(reward_bounds=np.array([0, 10])).scale(5) == 0.5
     with pytest.raises(ValueError, match="profile"):
         TeacherController("random", STUMPS, 0, profile="stump-tracks")
 
