@@ -2,7 +2,7 @@
 
 Actions come from a trained model (`--model RUN_DIR|MODEL.zip`, with its VecNormalize
 statistics), from several models side by side (`--compare A B ...`, one labelled cell each), or
-are random/zero (`--policy`). Tasks: `--task` (repeatable), a test set (`--test-set`, the
+are random/zero (`--policy`). `--curriculum RUN_DIR` animates a run's curriculum instead. Tasks: `--task` (repeatable), a test set (`--test-set`, the
 `--episodes` tasks spread from easy to hard), the run's own test set, or the env's default task.
 """
 
@@ -27,6 +27,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     what.add_argument(
         "--policy", choices=("random", "zero"), help="untrained actions (default: random)"
+    )
+    what.add_argument(
+        "--curriculum",
+        metavar="RUN_DIR",
+        help="animate a run's curriculum: sampled tasks over training, with the teacher's state",
     )
     p.add_argument("--env", help="environment (default: the run's, else stump-tracks)")
     p.add_argument("--body", help="body name (default: the run's, else classic_bipedal)")
@@ -68,17 +73,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-overlay", action="store_true", help="no task/step/return label")
     p.add_argument("--format", choices=("mp4", "gif", "png"), help="default: from --out")
     p.add_argument("--strip-frames", type=int, default=6, help="frames per episode in a PNG strip")
+    p.add_argument("--frames", type=int, default=40, help="frames of a --curriculum animation")
+    p.add_argument(
+        "--fps", type=int, help="frames per second (default: real time / --every; curriculum 4)"
+    )
     p.add_argument("--out", default="rollout.mp4", help="output .mp4, .gif or .png (strip)")
     p.add_argument("--no-progress", action="store_true")
 
 
 def _check_counts(args) -> None:
-    for name in ("episodes", "max_steps", "every", "width", "height", "strip_frames"):
+    for name in ("episodes", "max_steps", "every", "width", "height", "strip_frames", "frames"):
         value = getattr(args, name)
         if value < 1:
             raise ValueError(f"--{name.replace('_', '-')}={value}: must be >= 1")
-    if args.cols is not None and args.cols < 1:
-        raise ValueError(f"--cols={args.cols}: must be >= 1")
+    for name in ("cols", "fps"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise ValueError(f"--{name}={value}: must be >= 1")
     if len(args.task) > 1 and args.episodes != 1:
         raise ValueError("--episodes repeats a single --task; with several --task leave it at 1")
     if args.task and args.test_set:
@@ -152,6 +163,14 @@ def run(args: argparse.Namespace) -> int:
 
     _check_counts(args)
     output_format(args.out, args.format)  # a bad --out fails before any env is built
+    if args.curriculum:
+        from acl3d.training.curriculum_animation import write_curriculum_animation
+
+        write_curriculum_animation(
+            args.curriculum, args.out, frames=args.frames, fps=args.fps or 4, fmt=args.format
+        )
+        print(f"wrote {args.out}")
+        return 0
     targets = args.compare or [args.model]
     players, tasks = [], None
     try:
@@ -169,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             max_steps=args.max_steps,
             every=args.every,
+            fps=args.fps,
             progress=not args.no_progress,
             cols=args.cols if args.compare else 1,
             fmt=args.format,
