@@ -11,6 +11,7 @@ from pathlib import Path
 import yaml
 
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
+from acl3d.training.config import DEFAULT_N_ENVS
 
 _FLAGS = {  # store_true options: config field -> help
     "shuffle_dimensions": "cut each task dimension in 4 and shuffle the pieces (rugged difficulty)",
@@ -37,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--n-envs",
         type=int,
-        help="parallel training environments (default 1; >1 runs worker processes)",
+        help=f"parallel training environments (default {DEFAULT_N_ENVS})",
     )
     g.add_argument("--seed", type=int, help="seed of teacher, student and environments (default 0)")
     g.add_argument("--out", help="run directory to create")
@@ -100,8 +101,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="steps between teacher snapshots for plots (0 = never)",
     )
     g = p.add_argument_group("runtime")
-    g.add_argument("--vec-env", choices=("auto", "dummy", "subproc"))
-    g.add_argument("--start-method", choices=("forkserver", "spawn"))
+    g.add_argument(
+        "--vec-env", help="auto (default: batched for acl3d envs), batched, dummy or subproc"
+    )
+    g.add_argument(
+        "--envs-per-worker",
+        type=int,
+        metavar="N",
+        help="batched env: N envs per worker process (default: all envs in this process)",
+    )
+    g.add_argument("--start-method", help="worker processes: forkserver (default) or spawn")
     g.add_argument("--torch-threads", type=int, help="torch threads in this process (default 1)")
     g.add_argument("--device", help="torch device (default cpu)")
     g.add_argument(
@@ -197,7 +206,8 @@ def options_from_args(args) -> dict:
         "env", "body", "teacher", "student", "preset", "steps", "n_envs", "seed", "out",
         "expert_knowledge", "reset_student_every", "buffer_size", "eval_every", "eval_envs",
         "test_set", "nb_test_episodes", "checkpoint_every", "periodical_samples_every", "vec_env",
-        "start_method", "torch_threads", "device", "progress_bar", "save_replay_buffer", "verbose",
+        "envs_per_worker", "start_method", "torch_threads", "device", "progress_bar",
+        "save_replay_buffer", "verbose",
         *_FLAGS,
     )  # fmt: skip
     for name in simple:

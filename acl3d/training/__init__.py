@@ -2,9 +2,17 @@
 
 `config` (TrainConfig and its validation) < `session` (envs, student, controller, checkpoints)
 < `callbacks` (logging, evaluation, checkpoints, student resets) < `trainer` (`train()`).
+The names below load on first use, so `acl3d.training.config` alone stays light (the CLI's
+parser imports it without torch and SB3).
 """
 
-from acl3d.training.config import TrainConfig
-from acl3d.training.trainer import TrainResult, train
+import importlib
 
-__all__ = ["TrainConfig", "TrainResult", "train"]
+_EXPORTS = {"TrainConfig": "config", "TrainResult": "trainer", "train": "trainer"}
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'acl3d.training' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"acl3d.training.{_EXPORTS[name]}"), name)

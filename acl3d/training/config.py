@@ -1,6 +1,7 @@
 """`TrainConfig`: every option of a training run, and its strict validation.
 
-The CLI, config files and `train()` share one dataclass. `validate()` checks names, numbers and
+The CLI, config files and `train()` share one dataclass (this module imports neither torch nor
+SB3 until a config is validated, so the CLI's parser stays fast). `validate()` checks names, numbers and
 flags without building anything, so a bad option fails in a second with its name, value and the
 allowed values; nothing is coerced silently (a count written 2e6 is the only float accepted).
 """
@@ -14,8 +15,6 @@ from typing import Any
 
 from acl3d import validation as check
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
-from acl3d.training import students
-from acl3d.training.workers import check_vec_env
 
 DEFAULT_N_ENVS = 1  # training envs when none are asked for (one place, chosen by the lead)
 TEACHMYAGENT_EVAL_EVERY = 500_000
@@ -137,6 +136,8 @@ _MAPPINGS = ("bounds", "teacher_params", "student_params", "env_kwargs")
 def validate(config: TrainConfig) -> None:
     """Cheap checks of names, numbers and flags (everything that needs no environment)."""
     from acl3d.teachers import TEACHERS
+    from acl3d.training import students
+    from acl3d.training.workers import check_vec_env
 
     for name in _TEXTS:
         value = getattr(config, name)
@@ -177,6 +178,8 @@ def validate(config: TrainConfig) -> None:
 
 def student_params(config: TrainConfig) -> dict:
     """The SB3 hyperparameters of the run: preset, then `student_params`, then `buffer_size`."""
+    from acl3d.training import students
+
     overrides = dict(config.student_params)
     if config.buffer_size is not None:
         if config.student != "sac":
