@@ -21,11 +21,25 @@ from acl3d.video import open_sink
 _EPISODE_COLUMNS = {"step", "worker", "return", "length", "success", "truncated"}
 
 
-def _gmm_states(bk: dict) -> list[tuple[int, dict]]:
-    return [
-        (int(e), {"kind": "gmm", "means": m, "covariances": c, "weights": w})
-        for e, m, c, w in zip(bk["episodes"], bk["means"], bk["covariances"], bk["weights"])
-    ]
+def _gmm_states(bk: dict, dim: int, by_alp: bool) -> list[tuple[int, dict]]:
+    """The mixtures over [task, extra columns] cut to the task; ALP-GMM's colour is its ALP (the
+    last column, as it samples), the other mixtures' their weights."""
+    states = []
+    for e, m, c, w in zip(bk["episodes"], bk["means"], bk["covariances"], bk["weights"]):
+        m, c = np.asarray(m, dtype=np.float64), np.asarray(c, dtype=np.float64)
+        weights = np.maximum(m[:, -1], 0.0) if by_alp else np.asarray(w, dtype=np.float64)
+        states.append(
+            (
+                int(e),
+                {
+                    "kind": "gmm",
+                    "means": m[:, :dim],
+                    "covariances": c[:, :dim, :dim],
+                    "weights": weights,
+                },
+            )
+        )
+    return states
 
 
 def _riac_states(bk: dict, low: np.ndarray, high: np.ndarray) -> list[tuple[int, dict]]:
@@ -71,7 +85,7 @@ def teacher_states(dump: dict, steps: np.ndarray) -> list[tuple[int, dict]]:
         return []
     low, high = np.asarray(dump["low"], float), np.asarray(dump["high"], float)
     if bk.get("means") and bk.get("covariances"):
-        return _gmm_states(bk)
+        return _gmm_states(bk, len(low), dump.get("teacher") == "alp-gmm")
     if bk.get("splits"):
         return _riac_states(bk, low, high)
     if bk.get("task_space"):
