@@ -136,6 +136,8 @@ class RayExecutor:
             if address:
                 ray.init(address=address, **kwargs)
             else:  # a local instance sized to the campaign, so runs never oversubscribe it
+                # Ray nices its workers to 15 by default: training runs are the real work here.
+                os.environ.setdefault("RAY_worker_niceness", "0")
                 local = (max_parallel or max(1, (os.cpu_count() or 1) // cpus)) * cpus
                 ray.init(num_cpus=local, **kwargs)
         total = int(ray.cluster_resources().get("CPU", cpus))

@@ -130,36 +130,16 @@ def run_campaign(
         raise ValueError(f"every run of a campaign must use the same torch_threads, got {cpus}")
     camp = CampaignDir(out)
     camp.prepare(spec, runs, invocation or {})
-    with camp.lock(), _sigterm_as_interrupt():
+    with camp.lock():
         todo = deque(
             r for r in runs if not read_state(camp.run_dir(r.name), r.options["steps"]).finished
         )
         pool = make_executor(executor, max_parallel, cpus.pop(), address)
         view = ProgressView(camp, runs, live=live)
-        attempts: dict[str, int] = {}
-        failed: list[str] = []
         try:
-            while todo or pool.free_slots() < pool.capacity:
-                while todo and pool.free_slots() > 0:
-                    run = todo.popleft()
-                    attempts[run.name] = attempts.get(run.name, 0) + 1
-                    pool.submit(
-                        Job(
-                            run.name, str(camp.run_dir(run.name)), run.options, cpus_of(run.options)
-                        )
-                    )
-                for job, outcome in pool.wait(timeout=1.0):
-                    if outcome.ok:
-                        continue
-                    if outcome.traceback:
-                        record_failure(Path(job.run_dir), outcome.traceback)
-                    if outcome.retry and attempts[job.name] <= retries:
-                        todo.append(next(r for r in runs if r.name == job.name))
-                    else:
-                        failed.append(job.name)
-                    view.note(f"{job.name}: attempt {attempts[job.name]} failed: {outcome.error}")
-                view.refresh()
-        except KeyboardInterrupt:
+            with _sigterm_as_interrupt():  # installed after ray.init, which sets its own
+                failed = _drive(pool, view, camp, runs, todo, retries)
+        except BaseException:
             pool.shutdown(interrupt=True)
             view.close()
             raise
@@ -169,6 +149,31 @@ def run_campaign(
         r.name for r in runs if read_state(camp.run_dir(r.name), r.options["steps"]).finished
     ]
     return CampaignResult(finished=finished, failed=failed)
+
+
+def _drive(pool, view, camp: CampaignDir, runs: list[RunSpec], todo: deque, retries: int):
+    """Keep the executor full, retry failed attempts, refresh the view; returns failed runs."""
+    by_name = {r.name: r for r in runs}
+    attempts: dict[str, int] = {}
+    failed: list[str] = []
+    while todo or pool.free_slots() < pool.capacity:
+        while todo and pool.free_slots() > 0:
+            run = todo.popleft()
+            attempts[run.name] = attempts.get(run.name, 0) + 1
+            run_dir = str(camp.run_dir(run.name))
+            pool.submit(Job(run.name, run_dir, run.options, cpus_of(run.options)))
+        for job, outcome in pool.wait(timeout=1.0):
+            if outcome.ok:
+                continue
+            if outcome.traceback:
+                record_failure(Path(job.run_dir), outcome.traceback)
+            if outcome.retry and attempts[job.name] <= retries:
+                todo.append(by_name[job.name])
+            else:
+                failed.append(job.name)
+            view.note(f"{job.name}: attempt {attempts[job.name]} failed: {outcome.error}")
+        view.refresh()
+    return failed
 
 
 @contextmanager

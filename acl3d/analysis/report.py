@@ -1,0 +1,132 @@
+"""`analyze(root, out)`: tidy CSV, statistics tables, figures and a Markdown report.
+
+OUT/evaluations.csv        every evaluation of every run (labels, step, metrics)
+OUT/final_scores.csv       per teacher x task: runs, mean, std, ratio to baseline, Welch p
+OUT/aggregates.csv         per teacher: IQM, mean, P(improvement) with 95% CIs
+OUT/welch_over_steps.csv   Welch's test against the baseline at every evaluation
+OUT/curves.csv             mean and 95% bootstrap band at every evaluation, per cell
+OUT/*.png, OUT/report.md   figures and the report linking them
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from acl3d.analysis import figures
+from acl3d.analysis.compare import Comparison
+from acl3d.analysis.runs import METRICS, load_runs, write_tidy_csv
+from acl3d.analysis.stats import DEFAULT_REPS, Interval
+
+
+def _cell(value) -> str:
+    if isinstance(value, Interval):
+        return str(value)
+    if isinstance(value, float):
+        return "" if math.isnan(value) else f"{value:.4g}"
+    return str(value)
+
+
+def _write_csv(rows: list[dict], path: Path) -> None:
+    columns: list[str] = []
+    for row in rows:
+        columns += [k for k in row if k not in columns]
+    flat_cols = []
+    for c in columns:
+        if any(isinstance(r.get(c), Interval) for r in rows):
+            flat_cols += [c, f"{c}_low", f"{c}_high"]
+        else:
+            flat_cols.append(c)
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(flat_cols)
+        for row in rows:
+            out = []
+            for c in columns:
+                v = row.get(c, "")
+                if any(isinstance(r.get(c), Interval) for r in rows):
+                    out += [v.point, v.low, v.high] if isinstance(v, Interval) else ["", "", ""]
+                else:
+                    out.append(v)
+            writer.writerow(out)
+
+
+def _markdown_table(rows: list[dict], columns: list[str]) -> str:
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for row in rows:
+        lines.append("| " + " | ".join(_cell(row.get(c, "")) for c in columns) + " |")
+    return "\n".join(lines)
+
+
+def analyze(
+    root,
+    out=None,
+    baseline: str = "random",
+    metric: str = "mastered_pct",
+    reps: int = DEFAULT_REPS,
+    seed: int = 0,
+) -> Path:
+    """Write the report of the runs under `root` into `out` (default ROOT/report)."""
+    if metric not in METRICS:
+        raise ValueError(f"metric {metric!r} unknown; valid: {', '.join(METRICS)}")
+    if isinstance(reps, bool) or not isinstance(reps, int) or reps < 100:
+        raise ValueError(f"reps must be an integer >= 100, got {reps!r}")
+    runs = load_runs(root)
+    comp = Comparison(runs, baseline, metric)
+    out = Path(out) if out is not None else Path(root) / "report"
+    out.mkdir(parents=True, exist_ok=True)
+
+    write_tidy_csv(runs, out / "evaluations.csv")
+    aggregates = comp.aggregates(reps, seed)
+    final = comp.final_table()
+    over_steps = comp.welch_over_steps()
+    curve_rows = comp.curves(reps, seed)
+    for rows, name in ((final, "final_scores"), (aggregates, "aggregates"),
+                       (over_steps, "welch_over_steps"), (curve_rows, "curves")):  # fmt: skip
+        _write_csv(rows, out / f"{name}.csv")
+    pngs = [
+        figures.curves(comp, curve_rows, out / f"curves_{metric}.png"),
+        figures.intervals(comp, aggregates, out / "aggregates.png"),
+        figures.performance_profiles(comp, reps, seed, out / "performance_profile.png"),
+        *figures.radar(comp, out / "radar"),
+    ]
+    (out / "report.md").write_text(_report(comp, runs, aggregates, final, over_steps, pngs, reps))
+    return out
+
+
+def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
+    done = sum(r.status == "finished" for r in runs)
+    agg_cols = ["teacher", "runs", "tasks", "IQM", "mean", "P(improvement)"]
+    fin_cols = ["teacher", "task", "runs", "mean", "std", "baseline_mean", "ratio", "t", "p",
+                "significant"]  # fmt: skip
+    step_cols = ["teacher", "task", "step", "mean", "baseline_mean", "p", "significant"]
+    parts = [
+        f"# Campaign report: {comp.metric} against {comp.baseline}",
+        "",
+        f"{len(runs)} runs ({done} finished; unfinished runs count with their last "
+        f"evaluation), teachers: {', '.join(comp.teachers)}; tasks: "
+        f"{'; '.join(comp.task_name(t) for t in comp.tasks)}.",
+        "",
+        "## Final scores: aggregates with stratified-bootstrap 95% CIs",
+        "",
+        f"IQM and mean of the final {comp.metric} pooled over runs and tasks; P(improvement) = "
+        f"probability that a run of the teacher beats a run of {comp.baseline} on the same task "
+        f"(rliable's definitions, {reps} bootstrap replicates).",
+        "",
+        _markdown_table(aggregates, agg_cols),
+        "",
+        f"## Per task, with Welch's t-test against {comp.baseline} (p < 0.05)",
+        "",
+        _markdown_table(final, fin_cols),
+        "",
+        "## Welch's t-test at every evaluation",
+        "",
+        _markdown_table(over_steps, step_cols) if over_steps else "(no paired cells)",
+        "",
+        "## Figures",
+        "",
+        *(f"![{p.stem}]({p.name})" for p in pngs),
+        "",
+    ]
+    return "\n".join(parts)

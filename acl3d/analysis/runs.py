@@ -1,0 +1,112 @@
+"""Reading the runs of a campaign (or any folder of run directories) into tidy evaluations.
+
+A run directory is any folder under the root holding `config.yaml` and `evals.csv`. Its labels
+(teacher, env, body, student, criterion, expert knowledge, variant, seed) come from the
+campaign's `campaign.yaml` when there is one, else from the run's own config. Only files are
+read: this package imports nothing from training or the environments.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+CONFIG_LABELS = ("teacher", "env", "body", "student", "expert_knowledge", "seed")
+# Labels that tell conditions' cells apart (the teacher is the compared condition).
+TASK_LABELS = ("env", "body", "student", "criterion", "expert_knowledge")
+METRICS = ("mastered_pct", "mean_return")
+
+
+@dataclass
+class Run:
+    name: str
+    path: Path
+    labels: dict
+    status: str
+    steps: np.ndarray  # evaluation steps
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)  # metric -> one value per eval
+
+    @property
+    def teacher(self) -> str:
+        return str(self.labels.get("teacher"))
+
+    def task_key(self, keys: tuple[str, ...]) -> tuple:
+        return tuple(str(self.labels.get(k, "")) for k in keys)
+
+
+def _read_evals(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    steps = np.array([int(float(r["step"])) for r in rows], dtype=np.int64)
+    metrics = {m: np.array([float(r[m]) for r in rows]) for m in METRICS if rows and m in rows[0]}
+    return steps, metrics
+
+
+def _manifest_labels(root: Path) -> dict[str, dict]:
+    manifest = root / "campaign.yaml"
+    if not manifest.exists():
+        return {}
+    doc = yaml.safe_load(manifest.read_text()) or {}
+    return {r["name"]: dict(r["labels"]) for r in doc.get("runs", [])}
+
+
+def _status(path: Path) -> str:
+    try:
+        return json.loads((path / "status.json").read_text()).get("status", "unknown")
+    except (OSError, json.JSONDecodeError):
+        return "unknown"
+
+
+def load_runs(root) -> list[Run]:
+    """Every run directory under `root` with at least one evaluation, sorted by name."""
+    root = Path(root)
+    if not root.is_dir():
+        raise ValueError(f"{str(root)!r} is not a directory")
+    from_manifest = _manifest_labels(root)
+    runs = []
+    for config in sorted(root.rglob("config.yaml")):
+        path = config.parent
+        if not (path / "evals.csv").exists():
+            continue
+        steps, metrics = _read_evals(path / "evals.csv")
+        if steps.size == 0:
+            continue
+        saved = (yaml.safe_load(config.read_text()) or {}).get("config", {})
+        labels = {k: saved.get(k) for k in CONFIG_LABELS if k in saved}
+        labels.update(from_manifest.get(path.name, {}))
+        name = str(path.relative_to(root)) if path != root else path.name
+        runs.append(Run(name, path, labels, _status(path), steps, metrics))
+    if not runs:
+        raise ValueError(f"no run directory with evaluations (evals.csv) under {str(root)!r}")
+    return runs
+
+
+def task_keys(runs: list[Run]) -> tuple[str, ...]:
+    """The task labels that vary across runs (constant ones name no distinct cell)."""
+    return tuple(k for k in TASK_LABELS if len({str(r.labels.get(k, "")) for r in runs}) > 1)
+
+
+def write_tidy_csv(runs: list[Run], path: Path) -> None:
+    """One row per evaluation of every run: labels, step, metrics."""
+    label_keys = sorted({k for r in runs for k in r.labels})
+    metrics = [m for m in METRICS if any(m in r.metrics for r in runs)]
+    with Path(path).open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["run", "status", *label_keys, "eval_index", "step", *metrics])
+        for r in runs:
+            for i, step in enumerate(r.steps):
+                writer.writerow(
+                    [
+                        r.name,
+                        r.status,
+                        *(r.labels.get(k, "") for k in label_keys),
+                        i,
+                        int(step),
+                        *(f"{r.metrics[m][i]:.6g}" if m in r.metrics else "" for m in metrics),
+                    ]
+                )

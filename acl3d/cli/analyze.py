@@ -1,0 +1,27 @@
+"""`acl3d analyze DIR`: statistics, figures and a Markdown report of a campaign's runs."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", help="campaign directory (or any folder holding run directories)")
+    p.add_argument("--baseline", default="random", help="reference teacher (default random)")
+    p.add_argument("--out", help="report directory (default DIR/report)")
+    p.add_argument(
+        "--metric",
+        default="mastered_pct",
+        choices=("mastered_pct", "mean_return"),
+        help="score of a run at an evaluation (default: %% mastered test tasks)",
+    )
+    p.add_argument("--reps", type=int, default=20_000, help="bootstrap replicates (default 20000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
+
+
+def run(args) -> int:
+    from acl3d.analysis import analyze
+
+    out = analyze(args.dir, args.out, args.baseline, args.metric, args.reps, args.seed)
+    print(f"report written to {out / 'report.md'}")
+    return 0

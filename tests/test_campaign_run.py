@@ -1,0 +1,114 @@
+"""Campaigns end to end: two real training runs on a local Ray instance, a retried failure, and
+a campaign killed mid-run and continued (finished runs skipped, the interrupted one resumed)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from acl3d.analysis import analyze
+from acl3d.campaign import CampaignDir, load_spec, run_campaign
+
+# Tiny real runs: 256-step PPO rollouts, 40-step episodes, a 4-task test set.
+TINY = {
+    "n_envs": 1,
+    "vec_env": "dummy",
+    "nb_test_episodes": 4,
+    "env_kwargs": {"max_episode_steps": 40},
+    "student_params": {"n_steps": 256, "batch_size": 64, "n_epochs": 1},
+    "verbose": 0,
+}
+
+
+def _campaign_lines(run_dir: Path) -> list[str]:
+    return [
+        line for line in (run_dir / "campaign.log").read_text().splitlines() if "[campaign]" in line
+    ]
+
+
+def test_campaign_on_ray_then_analyze(tmp_path):
+    spec = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 512})
+    result = run_campaign(spec, tmp_path / "camp", executor="ray", max_parallel=2, live=False)
+    assert sorted(result.finished) == ["alp-gmm__s0", "random__s0"] and not result.failed
+    camp = CampaignDir(tmp_path / "camp")
+    for name in result.finished:
+        run = camp.run_dir(name)
+        assert json.loads((run / "status.json").read_text())["status"] == "finished"
+        config = yaml.safe_load((run / "config.yaml").read_text())["config"]
+        assert config["teacher"] == name.split("__")[0] and config["torch_threads"] == 1
+        lines = _campaign_lines(run)
+        assert len(lines) == 1 and "starting afresh" in lines[0] and "acl3d/__init__.py" in lines[0]
+    manifest = camp.read()
+    assert [r["name"] for r in manifest["runs"]] == ["random__s0", "alp-gmm__s0"]
+
+    report = analyze(tmp_path / "camp", reps=200)
+    evaluations = (report / "evaluations.csv").read_text().splitlines()
+    assert evaluations[0].startswith("run,status,") and len(evaluations) == 3
+    for name in ("report.md", "aggregates.csv", "final_scores.csv", "welch_over_steps.csv",
+                 "curves_mastered_pct.png", "aggregates.png", "performance_profile.png"):  # fmt: skip
+        assert (report / name).stat().st_size > 0
+
+
+def test_failed_attempts_are_retried_then_reported(tmp_path):
+    # An unknown teacher parameter passes the spec check and fails inside train: the config is
+    # rejected before the run starts, so the campaign does not retry it.
+    spec = load_spec("quick").scaled(
+        seeds=1, sets={**TINY, "steps": 512, "teacher": "random", "teacher_params": {"nope": 1}}
+    )
+    result = run_campaign(spec, tmp_path / "camp", executor="local", retries=2, live=False)
+    assert result.failed == ["s0"] and result.finished == []
+    failures = sorted((tmp_path / "camp" / "runs" / "s0" / "failures").iterdir())
+    assert [f.name for f in failures] == ["attempt_1.txt"]
+    assert "Traceback" in failures[0].read_text() and "nope" in failures[0].read_text()
+
+
+def test_interrupted_campaign_continues(tmp_path):
+    out = tmp_path / "camp"
+    options = {**TINY, "steps": 2048, "checkpoint_every": 256, "eval_every": 1024}
+    cmd = [sys.executable, "-m", "acl3d", "campaign", "run", "quick", "--out", str(out),
+           "--seeds", "1", "--executor", "local", "--max-parallel", "1"]  # fmt: skip
+    sets = [f"{k}={json.dumps(v)}" for k, v in options.items()]
+    for item in sets:
+        cmd += ["--set", item]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL)
+    first, second = out / "runs" / "random__s0", out / "runs" / "alp-gmm__s0"
+    deadline = time.monotonic() + 120
+    try:  # kill everything once the first run is done and the second has a checkpoint
+        while not (second / "checkpoints" / "LATEST").exists():
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert json.loads((first / "status.json").read_text())["status"] == "finished"
+    assert json.loads((second / "status.json").read_text())["status"] == "running"
+    finished_at = (first / "status.json").stat().st_mtime_ns
+
+    spec = load_spec("quick").scaled(seeds=1, sets=options)
+    result = run_campaign(spec, out, executor="local", max_parallel=1, live=False)
+    assert sorted(result.finished) == ["alp-gmm__s0", "random__s0"]
+    assert (first / "status.json").stat().st_mtime_ns == finished_at  # not redone
+    assert len(_campaign_lines(first)) == 1
+    lines = _campaign_lines(second)
+    assert len(lines) == 2 and "resuming from step" in lines[1]
+    evals = (second / "evals.csv").read_text().splitlines()
+    assert [row.split(",")[0] for row in evals[1:]] == ["1024", "2048"]
+
+
+def test_campaign_dir_holding_another_campaign_is_refused(tmp_path):
+    spec = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 512})
+    camp = CampaignDir(tmp_path)
+    camp.prepare(spec, spec.expand(), {})
+    other = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 1024})
+    with pytest.raises(ValueError, match="holds campaign 'quick' with other runs"):
+        run_campaign(other, tmp_path, executor="local")
+    with pytest.raises(ValueError, match="executor 'slurm' unknown"):
+        run_campaign(spec, tmp_path, executor="slurm")
+    with pytest.raises(ValueError, match="max_parallel must be an integer >= 1"):
+        run_campaign(spec, tmp_path, executor="local", max_parallel=0)
