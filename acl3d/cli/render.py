@@ -9,6 +9,7 @@ are random/zero (`--policy`). `--curriculum RUN_DIR` animates a run's curriculum
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +58,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=1,
         help="episodes (one --task repeated, or tasks picked from the test set, easy to hard)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the first reset (as evaluate)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        help="seed of the first reset, as `acl3d evaluate` seeds its envs (default: the run's "
+        "evaluation seed, as evaluate; 0 without a model)",
+    )
     p.add_argument("--stochastic", action="store_true", help="sample the model's actions")
     p.add_argument("--max-steps", type=int, default=2000, help="steps per episode at most")
     p.add_argument("--every", type=int, default=1, help="keep every N-th frame (smaller GIFs)")
@@ -96,19 +102,33 @@ def _check_counts(args) -> None:
         raise ValueError("--task and --test-set are exclusive: give tasks one way")
 
 
-def resolve_source(target, args):
-    """(model path or None, env name, body, env kwargs, run test tasks, cell title)."""
+@dataclass
+class Source:
+    """What one video cell plays: a model (or None), its env, the run's test tasks and seed."""
+
+    model: Path | None
+    env: str
+    body: str
+    env_kwargs: dict
+    tasks: np.ndarray | None
+    seed: int
+    title: str
+
+
+def resolve_source(target, args) -> Source:
     from acl3d.cli.evaluate import resolve_target
 
     if target is None:
-        return None, args.env or "stump-tracks", args.body or "classic_bipedal", {}, None, ""
-    model, env_name, body, env_kwargs, run_tasks = resolve_target(target, args.env, args.body)
-    title = Path(target).name if Path(target).is_dir() else Path(target).stem
-    if Path(target).is_dir():
+        return Source(
+            None, args.env or "stump-tracks", args.body or "classic_bipedal", {}, None, 0, ""
+        )
+    t = resolve_target(target, args.env, args.body)
+    title = Path(target).name if t.run_dir else Path(target).stem
+    if t.run_dir:
         from acl3d.training.run_dir import RunDir
 
-        title += f" ({RunDir(target).read_config().get('teacher', '?')})"
-    return model, env_name, body, env_kwargs, run_tasks, title
+        title += f" ({RunDir(t.run_dir).read_config().get('teacher', '?')})"
+    return Source(t.model, t.env, t.body, dict(t.env_kwargs), t.tasks, t.seed, title)
 
 
 def _make_env(env_name, body, env_kwargs, args):
@@ -142,7 +162,7 @@ def make_policy(model, env, args):
     from acl3d.training.trained_policy import TrainedPolicy
 
     if model is None:
-        rng = np.random.default_rng(args.seed)
+        rng = np.random.default_rng(args.seed or 0)
         space = env.action_space
 
         def zero(obs):
@@ -172,20 +192,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.out}")
         return 0
     targets = args.compare or [args.model]
-    players, tasks = [], None
+    players, tasks, seed = [], None, args.seed
     try:
         for target in targets:
-            model, env_name, body, env_kwargs, run_tasks, title = resolve_source(target, args)
-            env = _make_env(env_name, body, env_kwargs, args)
-            policy, label = make_policy(model, env, args)
-            players.append(EpisodePlayer(env, policy, title or label, not args.no_overlay))
-            if tasks is None:
-                tasks = _tasks(env, args, run_tasks)
+            source = resolve_source(target, args)
+            env = _make_env(source.env, source.body, source.env_kwargs, args)
+            policy, label = make_policy(source.model, env, args)
+            players.append(EpisodePlayer(env, policy, source.title or label, not args.no_overlay))
+            if tasks is None:  # every cell plays the first source's tasks, with its seed
+                tasks = _tasks(env, args, source.tasks)
+                seed = source.seed if seed is None else seed
         summaries = record_grid(
             players,
             args.out,
             tasks,
-            seed=args.seed,
+            seed=seed,
             max_steps=args.max_steps,
             every=args.every,
             fps=args.fps,

@@ -48,11 +48,11 @@ def run(args: argparse.Namespace) -> int:
         check_display()
     except RuntimeError as exc:  # a headless machine is a usage problem: one line, exit 2
         raise ValueError(str(exc)) from None
-    model, env_name, body, env_kwargs, _, _ = resolve_source(args.model, args)
-    kwargs = dict(env_kwargs)
+    source = resolve_source(args.model, args)
+    kwargs = dict(source.env_kwargs)
     if args.planar != "default":
         kwargs["planar"] = args.planar == "yes"
-    env = make_env(env_name, body, kwargs)
+    env = make_env(source.env, source.body, kwargs)
     try:
         core = env.unwrapped
         rng = np.random.default_rng(args.seed)
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
             if args.task
             else _random_task(core.task_space, rng, core.set_task)
         )
-        policy, _ = make_policy(model, env, args)
+        policy, _ = make_policy(source.model, env, args)
         obs, _ = env.reset(seed=args.seed, options={"task": task})
         viewer = HumanViewer(core.model, core.data, core.arena.camera, env.metadata["render_fps"])
         print("Enter: a new random task; close the window to quit", flush=True)
