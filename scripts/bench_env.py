@@ -6,6 +6,7 @@ in-run reference, so the ratios are comparable across machines. Run on an idle m
     python scripts/bench_env.py                 # classic biped on Stump Tracks (+ Walker2d-v5)
     python scripts/bench_env.py --bodies all    # every body, planar and 3D where offered
     python scripts/bench_env.py --parkour       # + Parkour: biped, climber, fish, water cost
+    python scripts/bench_env.py --batched       # + batched env (scripts/bench_batched.py)
 """
 
 from __future__ import annotations
@@ -133,6 +134,7 @@ def main() -> None:
     p.add_argument("--bodies", default="classic_bipedal", help="comma-separated names, or 'all'")
     p.add_argument("--no-render", action="store_true")
     p.add_argument("--parkour", action="store_true", help="also run scripts/bench_parkour.py")
+    p.add_argument("--batched", action="store_true", help="also run scripts/bench_batched.py")
     args = p.parse_args()
     bodies = list(BODIES) if args.bodies == "all" else args.bodies.split(",")
 
@@ -163,10 +165,14 @@ def main() -> None:
     if not args.no_render:
         print(f"render 640x480, default (fast) settings: {render_fps():.0f} fps (step + render)")
         print(f"render 640x480, quality='high': {render_fps(60, 'high'):.0f} fps")
-    if args.parkour:
-        print("\nParkour:")
-        sys.argv = [str(Path(__file__).with_name("bench_parkour.py"))]
-        runpy.run_path(sys.argv[0], run_name="__main__")
+    for flag, script, title in (
+        (args.parkour, "bench_parkour.py", "Parkour"),
+        (args.batched, "bench_batched.py", "Batched env"),
+    ):
+        if flag:
+            print(f"\n{title}:")
+            sys.argv = [str(Path(__file__).with_name(script))]
+            runpy.run_path(sys.argv[0], run_name="__main__")
 
 
 if __name__ == "__main__":

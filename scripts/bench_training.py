@@ -1,50 +1,30 @@
-"""Training throughput: SB3 students on Stump Tracks with a teacher in the loop vs without one,
-and vs Gymnasium's Walker2d-v5 under the same student settings.
+"""Training throughput: SB3 students on Stump Tracks with a teacher in the loop, on the batched
+env (all envs in this process) vs the one-env-per-process path, and vs Gymnasium's Walker2d-v5.
 
-    python scripts/bench_training.py                    # ~1-2 min: ppo+sac, 1 and 2 envs
-    python scripts/bench_training.py --students ppo --envs 2 --ppo-steps 8192
+    python scripts/bench_training.py                    # ~2-4 min: ppo + sac
+    python scripts/bench_training.py --students ppo --batched-envs 16 32 --teacher random
 
 Every cell is `model.learn()` steps per wall-clock second after a warm-up (PPO: whole rollouts;
-SAC: past learning_starts, so gradient steps are included). "Stump, no teacher" draws the same
-uniform tasks inside the env (no teacher, no curriculum sync), so teacher/no-teacher is the cost
-of the teacher in the loop. Ratios compare cells measured in this same run; on shared machines
-repeat with --repeats and read the best.
+SAC: past learning_starts, so gradient steps are included), with the `fast` preset for that
+number of envs and one torch thread. Columns: the batched env (`vec_env="batched"`, N envs,
+physics on one thread per core; sub-envs pull their tasks from the teacher at reset); the old
+path (`--old-envs` SubprocVecEnv workers, forkserver, tasks pushed to worker queues); Walker2d-v5
+on the same SubprocVecEnv setting. "teacher" is the share of the batched run's wall time spent in
+the teacher (sampling tasks, recording episodes). Ratios compare cells measured in this run; on
+shared machines repeat with --repeats and read the best.
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
 import time
 
-import gymnasium as gym
-import numpy as np
 import torch
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d.training import students
 from acl3d.training.curriculum import CurriculumVecEnv
 from acl3d.training.workers import make_env, make_vec_env
-
-
-class UniformTasks(gym.Wrapper):
-    """The no-teacher baseline: the env itself draws a uniform task at every reset.
-
-    Same task distribution as the Random teacher, so episode lengths (and reset costs) match
-    the teacher runs and the ratio isolates the teacher + curriculum-sync overhead."""
-
-    def __init__(self, env, seed: int):
-        super().__init__(env)
-        self.space = env.unwrapped.task_space
-        self.rng = np.random.default_rng(seed)
-
-    def reset(self, *, seed=None, options=None):
-        task = self.rng.uniform(self.space.low, self.space.high)
-        return self.env.reset(seed=seed, options={**(options or {}), "task": task})
-
-
-def make_uniform_stump(seed: int):
-    return UniformTasks(make_env("stump-tracks", "classic_bipedal"), seed)
 
 
 class TimedCurriculumVecEnv(CurriculumVecEnv):
@@ -57,6 +37,12 @@ class TimedCurriculumVecEnv(CurriculumVecEnv):
         super()._push(index)
         TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
 
+    def next_task(self, index):
+        start = time.perf_counter()
+        task = super().next_task(index)
+        TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
+        return task
+
     def _report(self, worker, info):
         start = time.perf_counter()
         super()._report(worker, info)
@@ -65,10 +51,7 @@ class TimedCurriculumVecEnv(CurriculumVecEnv):
 
 def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
     if kind == "walker2d":
-        venv = make_vec_env("Walker2d-v5", None, n_envs, curriculum=False)
-    elif kind == "stump":
-        fns = [functools.partial(make_uniform_stump, seed + i) for i in range(n_envs)]
-        venv = DummyVecEnv(fns) if n_envs == 1 else SubprocVecEnv(fns, "forkserver")
+        venv = make_vec_env("Walker2d-v5", None, n_envs, curriculum=False, vec_env="subproc")
     else:
         from acl3d.teachers.controller import TeacherController
 
@@ -76,9 +59,9 @@ def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):
         space, profile = probe.unwrapped.task_space, probe.unwrapped.curriculum_profile
         probe.close()
         controller = TeacherController(teacher, space, seed, profile=profile)
-        venv = TimedCurriculumVecEnv(
-            make_vec_env("stump-tracks", "classic_bipedal", n_envs, curriculum=True), controller
-        )
+        vec_env = "batched" if kind == "batched" else "subproc"
+        workers = make_vec_env("stump-tracks", "classic_bipedal", n_envs, vec_env=vec_env)
+        venv = TimedCurriculumVecEnv(workers, controller)
     if students.uses_vecnormalize(student):
         venv = VecNormalize(venv, clip_obs=10.0, clip_reward=10.0)
     return venv
@@ -111,57 +94,52 @@ def measure(kind, student, n_envs, steps, teacher, preset="fast"):
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--students", nargs="+", default=["ppo", "sac"], choices=students.STUDENTS)
-    p.add_argument("--envs", nargs="+", type=int, default=[1, 2], help="numbers of workers")
+    p.add_argument("--batched-envs", nargs="+", type=int, default=[16], help="batched env sizes")
+    p.add_argument("--old-envs", type=int, default=2, help="SubprocVecEnv workers (old path)")
     p.add_argument("--teacher", default="alp-gmm", help="teacher in the loop (default alp-gmm)")
     p.add_argument(
-        "--ppo-steps", type=int, default=4096, help="timed PPO steps (at least 1 rollout)"
+        "--ppo-steps", type=int, default=8192, help="timed PPO steps (at least 1 rollout)"
     )
-    p.add_argument("--sac-steps", type=int, default=1500, help="timed SAC steps")
+    p.add_argument("--sac-steps", type=int, default=3000, help="timed SAC steps")
     p.add_argument("--repeats", type=int, default=1, help="best of N measurements per cell")
     p.add_argument("--preset", default="fast", choices=students.PRESETS, help="student preset")
     args = p.parse_args()
     torch.set_num_threads(1)
 
-    kinds = ("teacher", "stump", "walker2d")
     rows = []
     for student in args.students:
         steps = args.ppo_steps if student == "ppo" else args.sac_steps
-        for n_envs in args.envs:
-            best = {k: 0.0 for k in kinds}
-            share = 1.0
-            for _ in range(args.repeats):
-                for kind in kinds:  # interleaved, so load changes hit all three alike
-                    sps, teacher_share = measure(
-                        kind, student, n_envs, steps, args.teacher, args.preset
-                    )
-                    best[kind] = max(best[kind], sps)
-                    if kind == "teacher":
-                        share = min(share, teacher_share)
-            best["share"] = share
-            rows.append((student, n_envs, best))
-            print(
-                f"  measured {student} x{n_envs}: "
-                + ", ".join(f"{k} {best[k]:.0f}" for k in kinds)
-                + f", teacher side {100 * share:.1f}% of the wall time",
-                flush=True,
-            )
+        cells = [("batched", n) for n in args.batched_envs]
+        cells += [("old", args.old_envs), ("walker2d", args.old_envs)]
+        best = {cell: 0.0 for cell in cells}
+        share = {n: 1.0 for n in args.batched_envs}
+        for _ in range(args.repeats):
+            for kind, n in cells:  # interleaved, so load changes hit every cell alike
+                sps, teacher_share = measure(kind, student, n, steps, args.teacher, args.preset)
+                best[(kind, n)] = max(best[(kind, n)], sps)
+                if kind == "batched":
+                    share[n] = min(share[n], teacher_share)
+                print(f"  {student} {kind} x{n}: {sps:.0f} steps/s", flush=True)
+        rows.append((student, best, share))
 
     print()
     print(
         f"training steps/s (SB3 '{args.preset}' preset; teacher = {args.teacher}; "
         f"best of {args.repeats})"
     )
+    old, walker = ("old", args.old_envs), ("walker2d", args.old_envs)
     print(
-        "| student | envs | Stump+teacher | Stump, no teacher | Walker2d-v5 "
-        "| teacher/no-teacher | teacher-side time | Stump+teacher/Walker2d |"
+        f"| student | envs | batched | old path ({args.old_envs} workers) | "
+        f"Walker2d-v5 ({args.old_envs} workers) | batched/old | batched/Walker2d | teacher time |"
     )
     print("|---|---|---|---|---|---|---|---|")
-    for student, n_envs, b in rows:
-        print(
-            f"| {student} | {n_envs} | {b['teacher']:.0f} | {b['stump']:.0f} | {b['walker2d']:.0f} "
-            f"| {b['teacher'] / b['stump']:.2f} | {100 * b['share']:.1f}% "
-            f"| {b['teacher'] / b['walker2d']:.2f} |"
-        )
+    for student, best, share in rows:
+        for n in args.batched_envs:
+            b = best[("batched", n)]
+            print(
+                f"| {student} | {n} | {b:.0f} | {best[old]:.0f} | {best[walker]:.0f} "
+                f"| {b / best[old]:.2f} | {b / best[walker]:.2f} | {100 * share[n]:.2f}% |"
+            )
 
 
 if __name__ == "__main__":

@@ -28,13 +28,11 @@ class TrackBatch:
         e = envs[0]
         self.envs = envs
         self.n = n = len(envs)
-        self.models = [env.model for env in envs]
         self.datas = [env.data for env in envs]
         self.physics_states = [env.physics for env in envs]  # mj_step x frame_skip, snapshots
         b, task, body = e.bound, e.task, e.body
         self.planar = body.planar
-        self.root_id, self.root_dof = b.root_id, b.root_dof
-        self.ctrl_ids = b.actuator_ids
+        self.root_dof = b.root_dof
         self.nb_motors = len(b.speeds)
         self.speeds, self.torque = b.speeds, body.torque
         self.cost_per_unit = body.torque_cost_per_unit
@@ -50,19 +48,29 @@ class TrackBatch:
         self._contact_cols = head + task._contact_pos
         self._lidar_col = head + motors + len(task._grasp)
         self.obs_size = task.obs_size
-        # gathered after physics, one row per env (filled by the worker threads)
-        self.qpos = np.zeros((n, e.model.nq))
-        self.qvel = np.zeros((n, e.model.nv))
-        self.root_xpos = np.zeros((n, 3))
-        self.root_xmat = np.zeros((n, 9))
-        self.root_cvel = np.zeros((n, 6))
+        # live views into each env's model and data (MuJoCo never moves these arrays)
+        ids, root = b.actuator_ids, b.root_id
+        whole = np.array_equal(ids, np.arange(e.model.nu))
+        self._caps = [env.model.actuator_forcerange[slice(None) if whole else ids] for env in envs]
+        self._ctrl = [env.data.ctrl for env in envs]
+        self._ctrl_index = slice(None) if whole else ids
+        self._views = {
+            "qpos": [env.data.qpos for env in envs],
+            "qvel": [env.data.qvel for env in envs],
+            "root_xpos": [env.data.xpos[root] for env in envs],
+            "root_xmat": [env.data.xmat[root] for env in envs],
+            "warnings": [env.data.warning.number for env in envs],
+        }
+        if not self.planar:
+            self._views["root_cvel"] = [env.data.cvel[root] for env in envs]
+        self._geom1 = [np.zeros(0, dtype=int)] * n
+        self._geom2 = [np.zeros(0, dtype=int)] * n
+        self._row_offsets = np.arange(n) * e.model.ngeom
         self.touched = np.zeros((n, e.model.ngeom), dtype=bool)
-        self.warnings = np.zeros(n, dtype=np.int64)
         self._servo = np.zeros((n, self.nb_motors, 2))
         self._targets = np.zeros((n, self.nb_motors))
-        self._warning_views = [env.data.warning.number for env in envs]
         # per-env episode state (also kept by each TrackEnv: see `pull` and `push`)
-        self.heights = np.zeros((n, e.arena.grid.ncol))
+        self.heights = self.lidar.batch_heights(n)
         self.prev_shaping = np.zeros(n)
         self.episode_return = np.zeros(n)
         self.warnings_seen = np.zeros(n, dtype=np.int64)
@@ -72,7 +80,7 @@ class TrackBatch:
     def pull(self, i: int) -> None:
         """Take env i's episode state after it was reset (or restored) on its own."""
         env = self.envs[i]
-        self.heights[i] = env.arena.heights
+        self.heights[i, : len(env.arena.heights)] = env.arena.heights
         self.prev_shaping[i] = env.task.prev_shaping
         self.episode_return[i] = env._episode_return
         self.warnings_seen[i] = env._warnings
@@ -96,27 +104,34 @@ class TrackBatch:
         self._targets[:] = self.speeds * np.sign(motors)
 
     def physics(self, lo: int, hi: int) -> None:
-        """Envs lo..hi-1: apply the servos, step (GIL released), copy the rows the task reads."""
-        ids, root = self.ctrl_ids, self.root_id
+        """Envs lo..hi-1: set the servos, step (GIL released), note the contacting geoms."""
+        caps, ctrl, index = self._caps, self._ctrl, self._ctrl_index
         for i in range(lo, hi):
-            m, d = self.models[i], self.datas[i]
-            m.actuator_forcerange[ids] = self._servo[i]
-            d.ctrl[ids] = self._targets[i]
+            caps[i][:] = self._servo[i]
+            ctrl[i][index] = self._targets[i]
             self.physics_states[i].step()
-            self.qpos[i] = d.qpos
-            self.qvel[i] = d.qvel
-            self.root_xpos[i] = d.xpos[root]
-            self.root_xmat[i] = d.xmat[root]
-            if not self.planar:
-                self.root_cvel[i] = d.cvel[root]
-            self.warnings[i] = self._warning_views[i][_BADQACC]
-            touched = self.touched[i]
-            touched[:] = False
-            if d.ncon:
-                touched[d.contact.geom[: d.ncon].ravel()] = True
+            d = self.datas[i]
+            n = d.ncon
+            contact = d.contact
+            self._geom1[i], self._geom2[i] = contact.geom1[:n], contact.geom2[:n]
+
+    def _gather(self) -> None:
+        """Copy the state rows the task reads from every env (after all physics ran)."""
+        for name, views in self._views.items():
+            setattr(self, name, np.stack(views))
+        self.warnings = self.warnings[:, _BADQACC]
+        touched = self.touched
+        touched[:] = False
+        counts = [len(g) for g in self._geom1]
+        if sum(counts):
+            rows = np.repeat(self._row_offsets, counts)
+            flat = touched.reshape(-1)
+            flat[rows + np.concatenate(self._geom1)] = True
+            flat[rows + np.concatenate(self._geom2)] = True
 
     def finish(self, actions: np.ndarray):
         """(obs float32 (N, obs), rewards, terminated, unstable) after `physics` ran for all."""
+        self._gather()
         head = self._head()
         x = self.root_xpos[:, 0]
         shaping = PROGRESS_GAIN * x

@@ -84,6 +84,7 @@ class ProfileLidar(Lidar):
         self._inv_sin = 1.0 / sin_s
         self._reach = int(np.ceil(ray_range * sin.max() / self._cell)) + 2
         self._terrain_geom = arena.model.geom("terrain").id
+        self._batch_n = 0
 
     def read(self, model, data, origin) -> np.ndarray:
         x0, z0 = float(origin[0]), float(origin[2])
@@ -117,43 +118,63 @@ class ProfileLidar(Lidar):
         self.geom_ids[:] = np.where(within, self._terrain_geom, -1)
         return out
 
+    def batch_heights(self, n: int) -> np.ndarray:
+        """Buffer for `read_batch`: N profiles of the grid's columns, then a -inf margin (the
+        columns past the track end, which no ray crosses)."""
+        out = np.full((n, self._ncol + self._reach + 1), -np.inf)
+        out[:, : self._ncol] = 0.0
+        return out
+
     def read_batch(self, heights: np.ndarray, origins: np.ndarray) -> np.ndarray:
-        """`read` for N envs at once: heights (N, ncol) of each env's profile, origins (N, 3).
+        """`read` for N envs at once: heights from `batch_heights`, origins (N, 3).
 
         Element by element the same arithmetic as `read` (no reductions that sum), so each row
         is bit-identical to `read` on that env alone, whatever N.
         """
-        n = len(origins)
-        rows = np.arange(n)
+        n, width = heights.shape
+        if self._batch_n != n:
+            self._batch_setup(n, width)
+        flat, base, reach = heights.reshape(-1), self._base, self._reach
         x0, z0 = origins[:, 0], origins[:, 2]
-        j = np.clip(((x0 - self._x_min) / self._cell).astype(np.int64), 0, self._ncol - 2)
-        hj = heights[rows, j]
+        j = ((x0 - self._x_min) / self._cell).astype(np.int64)
+        np.clip(j, 0, self._ncol - 2, out=j)
+        hj, hj1 = flat[base + j], flat[base + j + 1]
         frac = (x0 - self._x[j]) / self._cell
-        h0 = hj + frac * (heights[rows, j + 1] - hj)
-        cols = j[:, None] + 1 + np.arange(self._reach)
-        outside = cols >= self._ncol  # past the end of the grid: never crossed
-        cols = np.minimum(cols, self._ncol - 1)
-        xs, hs = self._x[cols], heights[rows[:, None], cols]
+        h0 = hj + frac * (hj1 - hj)
+        cols = j[:, None] + self._window
+        x0c, z0c = x0[:, None], z0[:, None]
         with np.errstate(divide="ignore", invalid="ignore"):
-            rise = (hs - z0[:, None]) / (xs - x0[:, None])
-        rise[outside] = -np.inf
+            rise = (flat[base[:, None] + cols] - z0c) / (self._x_padded[cols] - x0c)
         np.maximum.accumulate(rise, axis=1, out=rise)
-        reached = rise[:, :, None] >= self._slope  # (N, columns, slanted rays)
-        hit = reached.any(axis=1)
-        k = reached.argmax(axis=1)  # first column reaching the ray's slope: segment (k, k + 1)
+        # k = first column whose running max reaches the ray's slope (segment (k, k + 1)), i.e.
+        # how many columns stay below it: count the columns by how many slopes they reach
+        reached = np.searchsorted(self._slope, rise, side="right") + self._count_rows
+        k = np.bincount(reached.ravel(), minlength=self._count_size).reshape(n, -1)
+        k = k.cumsum(axis=1)[:, :-1]
+        hit = k < reach
+        b = j[:, None] + 1 + k  # the column ending the crossed segment
         first = k == 0
-        prev = np.take_along_axis(cols, np.maximum(k - 1, 0), axis=1)
-        xa = np.where(first, x0[:, None], self._x[prev])
-        ha = np.where(first, h0[:, None], heights[rows[:, None], prev])
-        nxt = np.take_along_axis(cols, k, axis=1)
-        xb, hb = self._x[nxt], heights[rows[:, None], nxt]
+        xa = np.where(first, x0c, self._x_padded[b - 1])
+        ha = np.where(first, h0[:, None], flat[base[:, None] + b - 1])
+        xb, hb = self._x_padded[b], flat[base[:, None] + b]
         s = self._slope
         with np.errstate(divide="ignore", invalid="ignore"):
             m = (hb - ha) / (xb - xa)
-            x_hit = (z0[:, None] - ha + m * xa - s * x0[:, None]) / (m - s)
-        dist = np.full((n, self.nb_rays), np.inf)
-        dist[:, self._slanted] = np.where(hit, (x_hit - x0[:, None]) * self._inv_sin, np.inf)
+            x_hit = (z0c - ha + m * xa - s * x0c) / (m - s)
+        dist = self._dist_buffer
+        dist[:, self._slanted] = np.where(hit, (x_hit - x0c) * self._inv_sin, np.inf)
         dist[:, self._vertical] = (z0 - h0)[:, None]
         out = np.where(dist <= self.range, dist * self._inv_range, 1.0)
         out[z0 <= h0] = 0.0  # origin inside the terrain: every ray hits at once
         return out
+
+    def _batch_setup(self, n: int, width: int) -> None:
+        self._batch_n = n
+        self._base = np.arange(n) * width
+        self._window = 1 + np.arange(self._reach)
+        pad = self._x[-1] + self._cell * np.arange(1, width - self._ncol + 1)
+        self._x_padded = np.concatenate((self._x, pad))
+        nb = len(self._slope)
+        self._count_rows = np.arange(n)[:, None] * (nb + 1)
+        self._count_size = n * (nb + 1)
+        self._dist_buffer = np.empty((n, self.nb_rays))

@@ -1,0 +1,171 @@
+"""Batched env speed: N envs in one process vs N single envs in a loop vs SubprocVecEnv.
+
+    python scripts/bench_batched.py                 # N = 1, 4, 16, 64; threads 1 and 2
+    python scripts/bench_env.py --batched           # the same, after the single-env table
+
+Total env steps/s with uniform random actions (classic biped, Stump Tracks h=1 sp=3; resets of
+finished envs are not timed, for all columns alike), measured in interleaved rounds in this run
+(best round per cell). "per-env / raw physics" is the batched env's wall time per env step
+(threads=1) over the time `mj_step` itself took for those steps. SubprocVecEnv (forkserver,
+N workers) is skipped above --max-subproc workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import time
+
+import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
+
+# isort: split
+import gymnasium as gym
+import mujoco
+import numpy as np
+from stable_baselines3.common.vec_env import SubprocVecEnv
+
+from acl3d.envs.batched import BatchedEnvs
+
+TASK = {"stump_height": 1.0, "obstacle_spacing": 3.0}
+ENV_ID = "acl3d/StumpTracks-v0"
+
+
+class PhysicsClock:
+    """Times every `mujoco.mj_step` call (single-threaded use only)."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self._mj_step = mujoco.mj_step
+
+    def __enter__(self):
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            self._mj_step(*args, **kwargs)
+            self.seconds += time.perf_counter() - t0
+
+        mujoco.mj_step = timed
+        return self
+
+    def __exit__(self, *exc):
+        mujoco.mj_step = self._mj_step
+
+
+class _nothing:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+def batched_rate(n: int, threads: int, steps: int, clock: bool = False) -> tuple[float, float]:
+    """(env steps/s, raw physics steps/s or nan) of a batched env of n sub-envs."""
+    batch = BatchedEnvs(ENV_ID, n, threads=threads)
+    batch.reset(seed=0, options={"task": TASK})
+    rng = np.random.default_rng(0)
+    rounds = max(1, steps // n)
+    actions = rng.uniform(-1, 1, (rounds, n, batch.action_size))
+    elapsed, physics = 0.0, 0.0
+    with PhysicsClock() if clock else _nothing() as timer:
+        for a in actions:
+            t0 = time.perf_counter()
+            _, _, terminated, truncated, _ = batch.step(a)
+            elapsed += time.perf_counter() - t0
+            before = timer.seconds if clock else 0.0
+            for i in np.flatnonzero(terminated | truncated):
+                batch.reset_one(int(i))
+            if clock:
+                physics += timer.seconds - before  # resets' physics is not part of the steps
+        raw = rounds * n / (timer.seconds - physics) if clock else float("nan")
+    batch.close()
+    return rounds * n / elapsed, raw
+
+
+def loop_rate(n: int, steps: int) -> float:
+    """N single `gymnasium.make` envs stepped one after the other in a Python loop."""
+    envs = [gym.make(ENV_ID) for _ in range(n)]
+    for i, env in enumerate(envs):
+        env.reset(seed=i, options={"task": TASK})
+    rng = np.random.default_rng(0)
+    rounds = max(1, steps // n)
+    actions = rng.uniform(-1, 1, (rounds, n, 4))
+    elapsed = 0.0
+    for a in actions:
+        t0 = time.perf_counter()
+        results = [env.step(a[i]) for i, env in enumerate(envs)]
+        elapsed += time.perf_counter() - t0
+        for env, r in zip(envs, results):
+            if r[2] or r[3]:
+                env.reset()
+    return rounds * n / elapsed
+
+
+def _make_single():
+    import acl3d.envs
+
+    env = acl3d.envs.make("stump-tracks")
+    env.unwrapped.set_task(TASK)
+    return env
+
+
+def subproc_rate(n: int, steps: int) -> float:
+    """SB3 SubprocVecEnv (forkserver) with n workers; its autoresets are inside the timing."""
+    venv = SubprocVecEnv([functools.partial(_make_single) for _ in range(n)], "forkserver")
+    venv.reset()
+    rng = np.random.default_rng(0)
+    rounds = max(1, steps // n)
+    actions = rng.uniform(-1, 1, (rounds, n, 4))
+    t0 = time.perf_counter()
+    for a in actions:
+        venv.step(a)
+    elapsed = time.perf_counter() - t0
+    venv.close()
+    return rounds * n / elapsed
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--steps", type=int, default=8000, help="env steps per cell and round")
+    p.add_argument("--sizes", type=int, nargs="+", default=[1, 4, 16, 64])
+    p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--rounds", type=int, default=3, help="interleaved rounds (best is kept)")
+    p.add_argument("--max-subproc", type=int, default=16, help="largest SubprocVecEnv measured")
+    args = p.parse_args()
+
+    best: dict = {}
+    for _ in range(args.rounds):
+        single = loop_rate(1, args.steps)
+        best["single"] = max(best.get("single", 0.0), single)
+        for n in args.sizes:
+            for threads in args.threads:
+                rate, raw = batched_rate(n, threads, args.steps, clock=threads == 1)
+                key = ("batched", n, threads)
+                if rate > best.get(key, (0.0,))[0]:
+                    best[key] = (rate, raw)
+            best[("loop", n)] = max(best.get(("loop", n), 0.0), loop_rate(n, args.steps))
+            if n <= args.max_subproc:
+                rate = subproc_rate(n, args.steps)
+                best[("subproc", n)] = max(best.get(("subproc", n), 0.0), rate)
+    single = best["single"]
+    print(f"single env (gymnasium.make, one process): {single:,.0f} steps/s\n")
+    head = " | ".join(f"batched, {t} thread{'s' if t > 1 else ''}" for t in args.threads)
+    print(
+        f"| N | {head} | N single envs, loop | SubprocVecEnv, N workers | per-env / raw physics |"
+    )
+    print("|---|" + "---|" * (len(args.threads) + 3))
+    for n in args.sizes:
+        cells = [best[("batched", n, t)][0] for t in args.threads]
+        cols = " | ".join(f"{c:,.0f} ({c / single:.2f}x)" for c in cells)
+        sub = best.get(("subproc", n))
+        sub_cell = f"{sub:,.0f} ({sub / single:.2f}x)" if sub else "-"
+        loop = best[("loop", n)]
+        raw = best[("batched", n, 1)][1] if 1 in args.threads else float("nan")
+        overhead = raw / best[("batched", n, 1)][0] if 1 in args.threads else float("nan")
+        print(
+            f"| {n} | {cols} | {loop:,.0f} ({loop / single:.2f}x) | {sub_cell} | {overhead:.2f}x |"
+        )
+    print("\n(x: total env steps/s relative to the single env measured in the same run)")
+
+
+if __name__ == "__main__":
+    main()
