@@ -14,6 +14,7 @@ import yaml
 
 from acl3d.analysis import analyze
 from acl3d.campaign import CampaignDir, load_spec, run_campaign
+from acl3d.cli import main
 
 # Tiny real runs: 256-step PPO rollouts, 40-step episodes, a 4-task test set.
 TINY = {
@@ -32,7 +33,7 @@ def _campaign_lines(run_dir: Path) -> list[str]:
     ]
 
 
-def test_campaign_on_ray_then_analyze(tmp_path):
+def test_campaign_on_ray_then_analyze(tmp_path, capsys):
     spec = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 512})
     result = run_campaign(spec, tmp_path / "camp", executor="ray", max_parallel=2, live=False)
     assert sorted(result.finished) == ["alp-gmm__s0", "random__s0"] and not result.failed
@@ -46,6 +47,9 @@ def test_campaign_on_ray_then_analyze(tmp_path):
         assert len(lines) == 1 and "starting afresh" in lines[0] and "acl3d/__init__.py" in lines[0]
     manifest = camp.read()
     assert [r["name"] for r in manifest["runs"]] == ["random__s0", "alp-gmm__s0"]
+    capsys.readouterr()
+    assert main(["campaign", "status", str(tmp_path / "camp")]) == 0
+    assert "2 finished" in capsys.readouterr().out
 
     report = analyze(tmp_path / "camp", reps=200)
     evaluations = (report / "evaluations.csv").read_text().splitlines()

@@ -131,8 +131,16 @@ def run_campaign(
     camp = CampaignDir(out)
     camp.prepare(spec, runs, invocation or {})
     with camp.lock():
-        todo = deque(
-            r for r in runs if not read_state(camp.run_dir(r.name), r.options["steps"]).finished
+        seeds = list(dict.fromkeys(r.options["seed"] for r in runs))
+        todo = deque(  # seed by seed, so that a campaign cut short has every condition
+            sorted(
+                (
+                    r
+                    for r in runs
+                    if not read_state(camp.run_dir(r.name), r.options["steps"]).finished
+                ),
+                key=lambda r: seeds.index(r.options["seed"]),
+            )
         )
         pool = make_executor(executor, max_parallel, cpus.pop(), address)
         view = ProgressView(camp, runs, live=live)
