@@ -109,8 +109,8 @@ class TaskSpace:
             return space
         if isinstance(space, Mapping):
             return cls.from_bounds(space)
-        raise TypeError(
-            f"expected a TaskSpace or a bounds dict {{name: [min, max]}}, got {type(space).__name__}"
+        raise validation.fail(
+            "task_space", space, "a TaskSpace or a bounds dict {name: [min, max]}"
         )
 
     def with_bounds(self, **bounds) -> TaskSpace:
