@@ -229,7 +229,10 @@ class TaskSpace:
 
         text = text.strip()
         if text.startswith("{"):
-            task = json.loads(text)
+            try:
+                task = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise validation.fail("task", text, f"a JSON object of numbers ({exc})") from None
         else:
             task = {}
             for item in filter(None, (t.strip() for t in text.split(","))):
