@@ -120,6 +120,8 @@ def test_rejected_states_change_nothing():
         ({**before, "task_vector": np.array([100.0, 1.0])}, "stump_height"),
         ({**before, "episode_return": "3"}, "episode_return"),
         ({k: v for k, v in before.items() if k != "terrain/heights"}, "terrain/heights"),
+        ({k: v for k, v in before.items() if k != "episode_return"}, "episode_return"),
+        ({k: v for k, v in before.items() if k != "physics/now"}, "physics/now"),
         ([1, 2], "state"),
     ]:
         with pytest.raises(ValueError, match=match):

@@ -39,6 +39,15 @@ TRACKS = {
 TRACK_PROFILES = {"stump": STUMP_TRACKS, "hexagon": HEXAGON_TRACKS}  # curriculum facts per track
 CONTROL_DT = 1 / 50  # 50 Hz control, as the original
 MAX_IMAGE_SIZE = 8192  # pixels, per side of a rendered frame
+_STATE_KEYS = (  # get_state()'s own keys (the RNG, physics and terrain parts check theirs)
+    "signature",
+    "task_vector",
+    "episode_return",
+    "instability_warnings",
+    "rng_seed",
+    "task/prev_shaping",
+    "task/critical_contact",
+)
 INIT_PUSH = 5.0  # the original pushes the hull once with a horizontal force U(-5, 5)
 
 
@@ -222,7 +231,7 @@ class TrackEnv(gym.Env):
         The whole snapshot is checked before anything changes: a rejected one (ValueError)
         leaves this env as it was.
         """
-        env_state.check_keys(state, ("signature", "rng_seed"))
+        env_state.check_keys(state, _STATE_KEYS)
         if state["signature"] != self._signature():
             raise validation.fail(
                 "state['signature']", state["signature"], f"this env's {self._signature()!r}"
