@@ -15,7 +15,8 @@ from acl3d.rendering import BACKEND_LIBRARIES, library_available
 REQUIRE_VARIABLE = "ACL3D_REQUIRE_GL"
 
 
-def _missing(reason: str) -> None:
+def missing(reason: str) -> None:
+    """Skip with `reason` (the package to install), or fail under ACL3D_REQUIRE_GL=1."""
     if os.environ.get(REQUIRE_VARIABLE) == "1":
         pytest.fail(f"{reason} ({REQUIRE_VARIABLE}=1: rendering tests may not be skipped)")
     pytest.skip(reason)
@@ -25,7 +26,7 @@ def require_backend(backend: str) -> None:
     """Skip (or fail under ACL3D_REQUIRE_GL=1) unless `backend`'s library loads."""
     lib, packages = BACKEND_LIBRARIES[backend]
     if not library_available(backend):
-        _missing(f"MUJOCO_GL={backend} needs lib{lib}: apt-get install {packages}")
+        missing(f"MUJOCO_GL={backend} needs lib{lib}: apt-get install {packages}")
 
 
 def require_offscreen_gl() -> None:
@@ -35,7 +36,7 @@ def require_offscreen_gl() -> None:
         require_backend(backend)
     elif not os.environ.get("DISPLAY"):
         packages = " or ".join(p for _, p in BACKEND_LIBRARIES.values())
-        _missing(f"no display and no EGL/OSMesa library: apt-get install {packages}")
+        missing(f"no display and no EGL/OSMesa library: apt-get install {packages}")
 
 
 def require_program(program: str, package: str) -> None:
@@ -43,7 +44,7 @@ def require_program(program: str, package: str) -> None:
     import shutil
 
     if shutil.which(program) is None:
-        _missing(f"{program} is missing: apt-get install {package}")
+        missing(f"{program} is missing: apt-get install {package}")
 
 
 def run_checked(proc_args, **kwargs):

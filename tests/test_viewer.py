@@ -1,19 +1,21 @@
 """render_mode="human" and `acl3d view`: a clear error without a display, a window under Xvfb."""
 
+import ctypes
 import os
+import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
-from gl_support import require_program, run_checked
+from gl_support import missing, require_program, run_checked
 
 from acl3d.cli import main
 from acl3d.envs.track_env import TrackEnv
 
-VIEWER_SCRIPT = textwrap.dedent(
+HUMAN_MODE_SCRIPT = textwrap.dedent(
     """
     import acl3d, gymnasium as gym
-    from acl3d.cli import main
     env = gym.make("acl3d/StumpTracks-v0", render_mode="human")
     env.reset(seed=0, options={"task": {"stump_height": 2.0}})
     for _ in range(20):
@@ -21,9 +23,35 @@ VIEWER_SCRIPT = textwrap.dedent(
     assert env.unwrapped._viewer.is_running()
     env.reset(options={"task": {"stump_height": 0.5}})  # a new terrain is uploaded
     env.close()
-    assert main(["view", "--steps", "25", "--task", "stump_height=1"]) == 0
+    print("closed")
     """
 )
+
+
+def press_enter(display: str) -> None:
+    """A real Enter key press on `display` (XTest), over the viewer window at the top-left."""
+    try:
+        x11, xtst = ctypes.CDLL("libX11.so.6"), ctypes.CDLL("libXtst.so.6")
+    except OSError as exc:
+        missing(f"pressing a key needs libX11/libXtst ({exc}): apt-get install libx11-6 libxtst6")
+    x11.XOpenDisplay.restype = ctypes.c_void_p
+    x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
+    x11.XKeysymToKeycode.argtypes = [ctypes.c_void_p, ctypes.c_ulong]
+    x11.XKeysymToKeycode.restype = ctypes.c_ubyte
+    x11.XFlush.argtypes = x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    xtst.XTestFakeMotionEvent.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_int] + [
+        ctypes.c_int,
+        ctypes.c_ulong,
+    ]
+    xtst.XTestFakeKeyEvent.argtypes = [ctypes.c_void_p, ctypes.c_uint, ctypes.c_int, ctypes.c_ulong]
+    handle = x11.XOpenDisplay(display.encode())
+    assert handle, f"cannot open {display}"
+    enter = x11.XKeysymToKeycode(handle, 0xFF0D)  # XK_Return
+    xtst.XTestFakeMotionEvent(handle, -1, 300, 300, 0)  # no window manager: focus follows pointer
+    xtst.XTestFakeKeyEvent(handle, enter, 1, 0)
+    xtst.XTestFakeKeyEvent(handle, enter, 0, 0)
+    x11.XFlush(handle)
+    x11.XCloseDisplay(handle)
 
 
 @pytest.fixture
@@ -50,8 +78,34 @@ def test_view_cli_without_a_display_exits_2_with_the_reason(headless, capsys):
     assert "acl3d view: error:" in err and "DISPLAY" in err and "xvfb" in err
 
 
-def test_the_viewer_opens_under_xvfb():
-    require_program("xvfb-run", "xvfb")
+@pytest.fixture
+def xvfb_display():
+    """A private Xvfb server; -displayfd reports its display number once it accepts clients."""
+    require_program("Xvfb", "xvfb")
+    server = subprocess.Popen(
+        ["Xvfb", "-displayfd", "1", "-screen", "0", "800x600x24", "-nolisten", "tcp"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        yield f":{server.stdout.readline().strip()}"
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
+def test_the_viewer_opens_under_xvfb_and_enter_gives_a_new_task(xvfb_display):
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
-    proc = run_checked(["xvfb-run", "-a", sys.executable, "-c", VIEWER_SCRIPT], env=env)
-    assert "viewed 25 steps" in proc.stdout
+    env["DISPLAY"] = xvfb_display
+    assert "closed" in run_checked([sys.executable, "-c", HUMAN_MODE_SCRIPT], env=env).stdout
+    view = [sys.executable, "-m", "acl3d", "view", "--steps", "150", "--task", "stump_height=1"]
+    proc = subprocess.Popen(
+        view, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline().startswith("Enter: a new random task")  # the window is open
+    time.sleep(0.5)
+    press_enter(xvfb_display)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "new task: {'stump_height'" in out and "viewed 150 steps" in out

@@ -159,8 +159,7 @@ def _tasks(env, args, run_tasks) -> list:
 
 
 def make_policy(model, env, args):
-    from acl3d.training.trained_policy import TrainedPolicy
-
+    """(obs -> action, label): the model's policy, or random/zero actions without a model."""
     if model is None:
         rng = np.random.default_rng(args.seed or 0)
         space = env.action_space
@@ -172,6 +171,8 @@ def make_policy(model, env, args):
             return rng.uniform(space.low, space.high).astype(space.dtype)
 
         return (zero, "zero actions") if args.policy == "zero" else (uniform, "random actions")
+    from acl3d.training.trained_policy import TrainedPolicy  # torch and SB3: only for a model
+
     policy = TrainedPolicy(model, deterministic=not args.stochastic)
     policy.check_env(env)
     return policy, None

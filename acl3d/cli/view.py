@@ -39,7 +39,7 @@ def _random_task(space, rng, check) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     from acl3d.cli.render import make_policy, resolve_source
-    from acl3d.training.workers import make_env
+    from acl3d.envs import make
     from acl3d.viewer import HumanViewer, check_display
 
     if args.steps is not None and args.steps < 1:
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     kwargs = dict(source.env_kwargs)
     if args.planar != "default":
         kwargs["planar"] = args.planar == "yes"
-    env = make_env(source.env, source.body, kwargs)
+    env = make(source.env, body=source.body, **kwargs)  # no training import without a model
     try:
         core = env.unwrapped
         rng = np.random.default_rng(args.seed)
