@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 
 import numpy as np
 
@@ -77,7 +76,7 @@ class CurriculumProfile:
             isinstance(k, str) and callable(v) for k, v in sets.items()
         ):
             raise validation.fail("test_sets", sets, "a mapping of names (str) to builders")
-        set_(self, "test_sets", MappingProxyType(dict(sets)))
+        set_(self, "test_sets", dict(sets))  # a copy: the caller's dict may change
         if self.default_test_grid is not None:
             if not isinstance(self.default_test_grid, Mapping):
                 raise validation.fail(
@@ -87,7 +86,7 @@ class CurriculumProfile:
                 str(k): _pair(f"default_test_grid[{k!r}]", v, True)
                 for k, v in dict(self.default_test_grid).items()
             }
-            set_(self, "default_test_grid", MappingProxyType(grid))
+            set_(self, "default_test_grid", grid)
 
     def initial_distribution(self, task_space) -> dict[str, np.ndarray] | None:
         """The easy-task Gaussian for `task_space`, or None when the environment gives none."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -116,6 +117,10 @@ def test_every_environment_declares_its_curriculum_profile(name, tmp_path):
         env.close()
     assert isinstance(profile, CurriculumProfile) and profile.name == name
     assert profile.success_return == 230.0 and profile.adr_reward_thresholds == (0.0, 180.0)
+    copied = pickle.loads(pickle.dumps(profile))  # profiles travel to worker processes
+    assert copied.reward_bounds == profile.reward_bounds and set(copied.test_sets) == set(
+        profile.test_sets
+    )
     c = TeacherController("random", space, 0, profile=profile)
     c.dump(tmp_path / "dump")
     dump = json.loads((tmp_path / "dump.json").read_text())
