@@ -19,6 +19,8 @@ from acl3d.analysis.compare import Comparison
 from acl3d.analysis.runs import METRICS, load_runs, write_tidy_csv
 from acl3d.analysis.stats import DEFAULT_REPS, Interval
 
+_MAX_MARKDOWN_ROWS = 60
+
 
 def _cell(value) -> str:
     if isinstance(value, Interval):
@@ -95,6 +97,18 @@ def analyze(
     return out
 
 
+def _steps_section(rows: list[dict], columns: list[str]) -> str:
+    if not rows:
+        return "(no teacher shares a task with the baseline)"
+    if len(rows) <= _MAX_MARKDOWN_ROWS:
+        return _markdown_table(rows, columns)
+    shown = [r for r in rows if r["significant"]][:_MAX_MARKDOWN_ROWS]
+    return (
+        f"{len(rows)} tests; the {len(shown)} first significant ones below, all of them in "
+        f"`welch_over_steps.csv`.\n\n" + _markdown_table(shown, columns)
+    )
+
+
 def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
     done = sum(r.status == "finished" for r in runs)
     agg_cols = ["teacher", "runs", "tasks", "IQM", "mean", "P(improvement)"]
@@ -122,7 +136,7 @@ def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
         "",
         "## Welch's t-test at every evaluation",
         "",
-        _markdown_table(over_steps, step_cols) if over_steps else "(no paired cells)",
+        _steps_section(over_steps, step_cols),
         "",
         "## Figures",
         "",
