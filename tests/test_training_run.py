@@ -295,3 +295,31 @@ def test_config_file_holds_options_and_cli_overrides_it(tmp_path):
     assert config.effective_eval_every == 400_000  # TeachMyAgent's 500k, scaled to 5 evals
     assert TrainConfig.from_dict({"steps": 20_000_000}).effective_eval_every == 500_000
     assert TrainConfig.from_dict({"steps": 10_000}).effective_eval_every == 50_000  # final only
+
+
+@pytest.mark.parametrize(
+    ("bad", "name"),
+    [
+        ({"steps": "1000"}, "steps"),
+        ({"steps": 2.5}, "steps"),
+        ({"steps": True}, "steps"),
+        ({"seed": True}, "seed"),
+        ({"n_envs": 0}, "n_envs"),
+        ({"shuffle_dimensions": "False"}, "shuffle_dimensions"),
+        ({"eval_stochastic": 1}, "eval_stochastic"),
+        ({"verbose": 5}, "verbose"),
+        ({"bounds": {"stump_height": ["0", 3]}}, "bounds"),
+        ({"bounds": {"stump_height": [0, 1j]}}, "bounds"),
+        ({"n_envs": 2, "envs_per_worker": 3}, "envs_per_worker"),
+        ({"teacher_params": [1]}, "teacher_params"),
+        ({"device": 0}, "device"),
+    ],
+)
+def test_config_is_strict(bad, name, tmp_path):
+    """No silent coercion: a string, bool or complex where a number or flag is meant fails
+    with the parameter's name, before the run directory exists."""
+    out = tmp_path / "strict"
+    with pytest.raises(ValueError, match=name):
+        train(out=str(out), progress_bar=False, **bad)
+    assert not out.exists()
+    assert TrainConfig(steps=2e6).steps == 2_000_000  # a count written 2e6 is fine
