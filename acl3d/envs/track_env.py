@@ -9,6 +9,7 @@ written into the heightfield in place. Per-episode randomness comes from `self.n
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import gymnasium as gym
 import mujoco
@@ -32,11 +33,18 @@ from acl3d.terrain.tracks import (
 )
 from acl3d.viewer import HumanViewer, check_display
 
+
+class TrackKind(NamedTuple):
+    """One kind of track: its default task parameters and its curriculum facts."""
+
+    parameters: tuple[str, ...]
+    profile: CurriculumProfile
+
+
 TRACKS = {
-    "stump": ("stump_height", "obstacle_spacing"),
-    "hexagon": ("poly_shape",),
+    "stump": TrackKind(("stump_height", "obstacle_spacing"), STUMP_TRACKS),
+    "hexagon": TrackKind(("poly_shape",), HEXAGON_TRACKS),
 }
-TRACK_PROFILES = {"stump": STUMP_TRACKS, "hexagon": HEXAGON_TRACKS}  # curriculum facts per track
 CONTROL_DT = 1 / 50  # 50 Hz control, as the original
 MAX_IMAGE_SIZE = 8192  # pixels, per side of a rendered frame
 _STATE_KEYS = (  # get_state()'s own keys (the RNG, physics and terrain parts check theirs)
@@ -156,12 +164,13 @@ class TrackEnv(gym.Env):
 
     # ------------------------------------------------------------------ construction hooks
     def _make_task_space(self, task_parameters) -> TaskSpace:
-        return track_task_space(TRACKS[self.track] if task_parameters is None else task_parameters)
+        names = TRACKS[self.track].parameters if task_parameters is None else task_parameters
+        return track_task_space(names)
 
     @property
     def curriculum_profile(self) -> CurriculumProfile:
         """What a curriculum needs to know about this track (reward bounds, priors, test sets)."""
-        return TRACK_PROFILES[self.track]
+        return TRACKS[self.track].profile
 
     def _make_generator(self):
         return TrackGenerator(TrackGrid())
