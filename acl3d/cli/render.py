@@ -131,13 +131,18 @@ def resolve_source(target, args) -> Source:
     return Source(t.model, t.env, t.body, dict(t.env_kwargs), t.tasks, t.seed, title)
 
 
-def _make_env(env_name, body, env_kwargs, args):
-    from acl3d.training.workers import make_env
-
-    kwargs = dict(env_kwargs, width=args.width, height=args.height, quality=args.quality)
+def make_source_env(source: Source, args, **render_kwargs):
+    """The env of `source`, built as the evaluation builds it when a model is played."""
+    kwargs = dict(source.env_kwargs, **render_kwargs)
     if args.planar != "default":
         kwargs["planar"] = args.planar == "yes"
-    return make_env(env_name, body, kwargs, render_mode="rgb_array")
+    if source.model is None:  # untrained actions: no training import (torch, SB3)
+        from acl3d.envs import make
+
+        return make(source.env, body=source.body, **kwargs)
+    from acl3d.training.workers import make_env
+
+    return make_env(source.env, source.body, kwargs)
 
 
 def _tasks(env, args, run_tasks) -> list:
@@ -197,7 +202,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         for target in targets:
             source = resolve_source(target, args)
-            env = _make_env(source.env, source.body, source.env_kwargs, args)
+            env = make_source_env(
+                source,
+                args,
+                render_mode="rgb_array",
+                width=args.width,
+                height=args.height,
+                quality=args.quality,
+            )
             policy, label = make_policy(source.model, env, args)
             players.append(EpisodePlayer(env, policy, source.title or label, not args.no_overlay))
             if tasks is None:  # every cell plays the first source's tasks, with its seed

@@ -38,8 +38,7 @@ def _random_task(space, rng, check) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acl3d.cli.render import make_policy, resolve_source
-    from acl3d.envs import make
+    from acl3d.cli.render import make_policy, make_source_env, resolve_source
     from acl3d.viewer import HumanViewer, check_display
 
     if args.steps is not None and args.steps < 1:
@@ -49,10 +48,7 @@ def run(args: argparse.Namespace) -> int:
     except RuntimeError as exc:  # a headless machine is a usage problem: one line, exit 2
         raise ValueError(str(exc)) from None
     source = resolve_source(args.model, args)
-    kwargs = dict(source.env_kwargs)
-    if args.planar != "default":
-        kwargs["planar"] = args.planar == "yes"
-    env = make(source.env, body=source.body, **kwargs)  # no training import without a model
+    env = make_source_env(source, args)
     try:
         core = env.unwrapped
         rng = np.random.default_rng(args.seed)
