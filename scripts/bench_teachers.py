@@ -1,15 +1,23 @@
-"""Benchmark every available teacher on the toy environment against teachDeepRL's numbers.
+"""Benchmark teachers on the toy environment's variants against teachDeepRL's numbers.
 
-For each preset (teachDeepRL / TeachMyAgent-benchmark hyper-parameters) and teacher: % mastered
-cubes at 5k/10k/20k episodes (2-D toy, 10 cubes per dimension, mean +- std over seeds) and the
-teacher's CPU seconds per 1000 episodes (process time inside sample_task/updates only), next to the
-original teachDeepRL results. Teachers whose module cannot be imported are skipped. Teachers that
-need more than returns get success = reward > 0.75 and one-step episodes (see
-`acl3d.toy.run_teacher`); ADR and the oracle get toy reward thresholds (`toy_teacher_params`).
-A teacher that both presets configure alike (e.g. one neither preset mentions) runs once.
+Variants (all built from `acl3d.toy.ToyEnv`, 10 cubes per relevant dimension):
+  plain       the 2-D toy of teachDeepRL's demo;
+  irrelevant  + 3 task dimensions the toy ignores (distractors);
+  noise       rewards + N(0, 0.1) noise;
+  shuffled    rugged difficulty: the teacher's space is cut into 4 intervals per dimension and
+              shuffled before the toy sees it (TeachMyAgent's `DimensionsShuffler`);
+  unfeasible  mostly unfeasible space: [0, 3]^2 of which only [0, 1]^2 can be learned
+              (`--ratio`, `--nb-dims` change the sizes, e.g. `--nb-dims 3 --ratio 2`).
+For each preset (teachDeepRL / TeachMyAgent-benchmark hyper-parameters), variant and teacher:
+% mastered cubes at 5k/10k/20k episodes (mean +- std over seeds) and the teacher's CPU seconds per
+1000 episodes (process time inside sample_task/updates only), next to the original teachDeepRL
+code's results where they were measured. Teachers whose module cannot be imported are skipped.
+Teachers that need more than returns get what `acl3d.toy.run_teacher` gives (success, one-step
+episodes, a learner-value proxy); ADR, the oracle and terrain levels get toy thresholds
+(`toy_teacher_params`). A teacher that both presets configure alike runs once.
 
-    python scripts/bench_teachers.py                      # full run (several minutes)
-    python scripts/bench_teachers.py --seeds 1 --episodes 5000 --teachers alp-gmm,riac
+    python scripts/bench_teachers.py --teachers alp-gmm,covar-gmm,riac --preset teachdeeprl
+    python scripts/bench_teachers.py --seeds 1 --episodes 5000 --variants unfeasible
 """
 
 from __future__ import annotations
@@ -23,24 +31,46 @@ import time
 import numpy as np
 
 from acl3d.teachers import TEACHERS, make, teacher_class
+from acl3d.teachers.controller import DimensionsShuffler
 from acl3d.teachers.presets import PRESETS, preset_params
 from acl3d.toy import ToyEnv, run_teacher, toy_teacher_params
 
-# teachDeepRL's toy demo (tDRL defaults, 5 seeds, 20k episodes) and its teachers' CPU time.
-REF_SCORE_20K = {"random": 4.6, "alp-gmm": 35.0, "riac": 47.0, "covar-gmm": 63.0}
+VARIANTS = ("plain", "irrelevant", "noise", "shuffled", "unfeasible")
+# The original teachDeepRL code (tDRL defaults) on the same problems, 20k episodes: the 2-D toy
+# (5 seeds) and [0,3]^2 with [0,1]^2 learnable (3 seeds); teacher CPU seconds per 1000 episodes.
+REF_SCORE_20K = {
+    "plain": {"random": 4.6, "alp-gmm": 35.0, "riac": 47.0, "covar-gmm": 63.0},
+    "unfeasible": {"alp-gmm": 20.0, "riac": 27.0, "covar-gmm": 54.0},
+}
 REF_CPU_PER_1000 = {"alp-gmm": 0.56, "covar-gmm": 0.41, "riac": 1.0}
 
 
+def make_env(variant: str, seed: int, nb_dims: int, ratio: float) -> tuple[ToyEnv, object]:
+    """The toy for `variant` and the map from teacher tasks to toy tasks (None: identity)."""
+    kwargs = {
+        "plain": {},
+        "irrelevant": {"nb_irrelevant_dims": 3},
+        "noise": {"noise": 0.1},
+        "shuffled": {},
+        "unfeasible": {"space_ratio": ratio},
+    }[variant]
+    env = ToyEnv(nb_dims=nb_dims, nb_cubes=10, seed=seed, **kwargs)
+    if variant != "shuffled":
+        return env, None
+    space = env.task_space()
+    return env, DimensionsShuffler(space.low, space.high, cuttings=4, seed=seed).forward
+
+
 def bench_one(
-    name: str, preset: str, seed: int, episodes: int, checkpoints: list[int]
+    name: str, preset: str, variant: str, seed: int, episodes: int, checkpoints, nb_dims, ratio
 ) -> tuple[list[float], float]:
-    env = ToyEnv(nb_dims=2, nb_cubes=10, seed=seed)
+    env, to_env = make_env(variant, seed, nb_dims, ratio)
     params = preset_params(preset, name) | toy_teacher_params(name, env)
     teacher = make(name, env.task_space(), seed=seed, **params)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     every = math.gcd(*checkpoints)
-    result = run_teacher(teacher, env, episodes, score_every=every)
+    result = run_teacher(teacher, env, episodes, score_every=every, to_env=to_env)
     by_episode = dict(zip(result.episodes, result.scores))
     return [by_episode[c] for c in checkpoints], result.cpu_per_1000
 
@@ -54,6 +84,14 @@ def effective_params(name: str, preset: str) -> dict:
     return params | preset_params(preset, name)
 
 
+def _names(text: str, valid, what: str, parser) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in valid]
+    if unknown:
+        parser.error(f"unknown {what}(s) {unknown}; valid: {', '.join(valid)}")
+    return names
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
@@ -62,15 +100,17 @@ def main(argv=None) -> int:
         "--teachers", default=",".join(TEACHERS), help="comma-separated teacher names"
     )
     parser.add_argument("--preset", default="all", choices=["all", *PRESETS])
+    parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated variants")
+    parser.add_argument("--nb-dims", type=int, default=2, help="relevant task dimensions")
+    parser.add_argument(
+        "--ratio", type=float, default=3.0, help="unfeasible: task-space side / learnable side"
+    )
     args = parser.parse_args(argv)
-    names = [n.strip() for n in args.teachers.split(",") if n.strip()]
-    unknown = [n for n in names if n not in TEACHERS]
-    if unknown:
-        parser.error(f"unknown teacher(s) {unknown}; valid: {', '.join(TEACHERS)}")
+    names = _names(args.teachers, TEACHERS, "teacher", parser)
+    variants = _names(args.variants, VARIANTS, "variant", parser)
     available = []
     for n in names:
         try:
-            teacher_class(n)
             make(n, ToyEnv().task_space(), seed=0, **toy_teacher_params(n, ToyEnv()))
             available.append(n)
         except (ImportError, ValueError) as exc:  # not written yet, or needs inputs the toy lacks
@@ -79,40 +119,54 @@ def main(argv=None) -> int:
     if checkpoints[-1] != args.episodes:
         checkpoints.append(args.episodes)
     presets = list(PRESETS) if args.preset == "all" else [args.preset]
+    standard = args.nb_dims == 2 and args.ratio == 3.0 and args.episodes == 20000
 
     head = " | ".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in checkpoints)
     rows = [
-        f"| teacher | preset | {head} | tDRL 20k | score ratio | CPU s/1000 ep | tDRL CPU | CPU ratio |",
-        "|" + "---|" * (len(checkpoints) + 7),
+        f"| variant | teacher | preset | {head} | tDRL 20k | score ratio | CPU s/1000 ep | tDRL CPU | CPU ratio |",
+        "|" + "---|" * (len(checkpoints) + 8),
     ]
-    done: dict[tuple[str, str], tuple] = {}  # a teacher the presets configure alike runs once
-    for preset in presets:
-        for name in available:
-            key = (name, repr(sorted(effective_params(name, preset).items())))
-            if key not in done:
-                scores, cpus = [], []
-                t0 = time.time()
-                for seed in range(args.seeds):
-                    s, cpu = bench_one(name, preset, seed, args.episodes, checkpoints)
-                    scores.append(s)
-                    cpus.append(cpu)
-                scores_arr = np.asarray(scores)
-                done[key] = (scores_arr.mean(axis=0), scores_arr.std(axis=0), float(np.mean(cpus)))
-                print(
-                    f"done {name} ({preset}) in {time.time() - t0:.0f} s",
-                    file=sys.stderr,
-                    flush=True,
+    done: dict[tuple, tuple] = {}  # a teacher the presets configure alike runs once
+    for variant in variants:
+        for preset in presets:
+            for name in available:
+                key = (variant, name, repr(sorted(effective_params(name, preset).items())))
+                if key not in done:
+                    t0 = time.time()
+                    runs = [
+                        bench_one(
+                            name,
+                            preset,
+                            variant,
+                            seed,
+                            args.episodes,
+                            checkpoints,
+                            args.nb_dims,
+                            args.ratio,
+                        )
+                        for seed in range(args.seeds)
+                    ]
+                    scores = np.asarray([r[0] for r in runs])
+                    cpu = float(np.mean([r[1] for r in runs]))
+                    done[key] = (scores.mean(axis=0), scores.std(axis=0), cpu)
+                    print(
+                        f"done {variant} {name} ({preset}) in {time.time() - t0:.0f} s",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                mean, std, cpu = done[key]
+                ref_s = REF_SCORE_20K.get(variant, {}).get(name) if standard else None
+                ref_c = REF_CPU_PER_1000.get(name)
+                cells = " | ".join(f"{m:.1f} ± {s:.1f}" for m, s in zip(mean, std))
+                score_ratio = f"{mean[-1] / ref_s:.2f}" if ref_s else "–"
+                cpu_ratio = f"{cpu / ref_c:.2f}" if ref_c else "–"
+                rows.append(
+                    f"| {variant} | {name} | {preset} | {cells} | {ref_s if ref_s is not None else '–'} | {score_ratio} | {cpu:.3f} | {ref_c if ref_c is not None else '–'} | {cpu_ratio} |"
                 )
-            mean, std, cpu = done[key]
-            ref_s, ref_c = REF_SCORE_20K.get(name), REF_CPU_PER_1000.get(name)
-            cells = " | ".join(f"{m:.1f} ± {s:.1f}" for m, s in zip(mean, std))
-            score_ratio = f"{mean[-1] / ref_s:.2f}" if ref_s and checkpoints[-1] == 20000 else "–"
-            cpu_ratio = f"{cpu / ref_c:.2f}" if ref_c else "–"
-            rows.append(
-                f"| {name} | {preset} | {cells} | {ref_s if ref_s is not None else '–'} | {score_ratio} | {cpu:.3f} | {ref_c if ref_c is not None else '–'} | {cpu_ratio} |"
-            )
     print(
-        f"\n{args.seeds} seeds, {args.episodes} episodes, 2-D toy, 10 cubes/dim; tDRL references: 5 seeds, 20k episodes, tDRL defaults."
+        f"\n{args.seeds} seeds, {args.episodes} episodes, {args.nb_dims} relevant dims, 10 cubes/dim,"
+        f" unfeasible ratio {args.ratio:g}; tDRL references: tDRL defaults, 20k episodes"
+        " (plain: 5 seeds, unfeasible: 3 seeds)."
     )
     print("\n".join(rows))
     return 0

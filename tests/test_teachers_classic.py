@@ -1,4 +1,5 @@
-"""Behaviour of the classic teachers: Random, ALP-GMM, Covar-GMM, RIAC, ADR, Oracle."""
+"""Behaviour of the classic teachers: Random, ALP-GMM, Covar-GMM, RIAC, ADR, Oracle, and the
+return/value-driven ones (Robust PLR, ACCEL, terrain levels) on the same generic checks."""
 
 from __future__ import annotations
 
@@ -20,6 +21,9 @@ FAST = {
     "riac": {"max_region_size": 30, "nb_split_attempts": 10},
     "adr": {"queue_len": 3, "min_reward_thr": 0.2, "max_reward_thr": 0.6},
     "oracle": {"step_rate": 10, "reward_thr": 0.3},
+    "robust-plr": {"buffer_size": 20},
+    "accel": {"buffer_size": 20, "nb_edits": 2},
+    "terrain-levels": {"nb_workers": 3, "promote_return": 0.5, "demote_return": 0.02},
 }
 NAMES = list(FAST)
 

@@ -35,6 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--noise", type=float, default=0.0, help="std of Gaussian noise added to rewards"
     )
     parser.add_argument(
+        "--space-ratio",
+        type=float,
+        default=1.0,
+        help="task space side / learnable side per relevant dimension (3: only 1/9 of a 2-D"
+        " space can be learned)",
+    )
+    parser.add_argument(
         "--preset",
         default="teachdeeprl",
         choices=sorted(PRESETS),
@@ -54,7 +61,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    env = ToyEnv(args.nb_dims, args.nb_cubes, args.irrelevant_dims, args.noise, seed=args.seed)
+    env = ToyEnv(
+        args.nb_dims,
+        args.nb_cubes,
+        args.irrelevant_dims,
+        args.noise,
+        seed=args.seed,
+        space_ratio=args.space_ratio,
+    )
     params = (
         preset_params(args.preset, args.teacher)
         | toy_teacher_params(args.teacher, env)
@@ -65,7 +79,12 @@ def run(args: argparse.Namespace) -> int:
     if args.gif:
         from acl3d.teachers.plots import SamplingRecorder
 
-        recorder = SamplingRecorder(teacher, every=args.gif_every, background=env.competence_map)
+        recorder = SamplingRecorder(
+            teacher,
+            every=args.gif_every,
+            background=env.competence_map,
+            background_extent=(0.0, 1.0, 0.0, 1.0),  # the cubes cover the learnable box
+        )
 
     def report(episode: int, score: float) -> None:
         print(f"episode {episode:>7d}: {score:5.1f}% mastered cubes", flush=True)

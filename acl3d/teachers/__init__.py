@@ -19,6 +19,9 @@ _REGISTRY: dict[str, str] = {
     "setter-solver": "acl3d.teachers.setter_solver:SetterSolver",
     "oracle": "acl3d.teachers.oracle:Oracle",
     "lessons": "acl3d.teachers.lessons:Lessons",
+    "robust-plr": "acl3d.teachers.plr:RobustPLR",
+    "accel": "acl3d.teachers.plr:ACCEL",
+    "terrain-levels": "acl3d.teachers.terrain_levels:TerrainLevels",
 }
 
 TEACHERS: tuple[str, ...] = tuple(_REGISTRY)

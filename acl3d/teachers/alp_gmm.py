@@ -162,6 +162,10 @@ class ALPGMM(GMMTeacherBase):
     def _component_weights(self) -> np.ndarray:
         return np.maximum(self.gmm.means[:, -1], 0.0)
 
+    def _seed_columns(self, n_columns: int) -> np.ndarray:
+        """Seed the Gaussians by place only: the ALP column would otherwise steer the seeding."""
+        return np.arange(self.d_act)
+
     def _extra_state(self) -> dict[str, Any]:
         return {
             **self._gmm_state(),

@@ -9,7 +9,6 @@ state changes, so a bad call never corrupts what the teacher learned.
 from __future__ import annotations
 
 import json
-import math
 from abc import ABC, abstractmethod
 from collections import defaultdict
 from collections.abc import Callable
@@ -18,7 +17,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.task_space import TaskSpace
+
+# Sanity limits on what teachers are told: a reported task may lie outside the bounds (float
+# rounding, a shuffler's inverse map) but not by more than this many ranges of each dimension, and
+# no return is larger than this (beyond, squares in the mixture fits overflow).
+SANE_TASK_MARGIN = 10.0
+MAX_ABS_RETURN = 1e12
 
 ValueEstimator = Callable[[np.ndarray], np.ndarray | None]
 
@@ -48,11 +54,10 @@ class Teacher(ABC):
         self.mins = self.task_space.low
         self.maxs = self.task_space.high
         self.dim = self.task_space.dim
+        seed = validation.seed(seed)
         if seed is None:
             seed = int(np.random.SeedSequence().entropy % (2**31))
-        if not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
-        self.seed = int(seed)
+        self.seed = seed
         self.rng = np.random.default_rng(self.seed)
         self.value_estimator: ValueEstimator = _no_value
         self.bk: dict[str, list] = defaultdict(list)
@@ -68,7 +73,8 @@ class Teacher(ABC):
         """Learn from one finished episode played on `task` with return `reward`."""
         task = self._check_task(task)
         reward = self._check_scalar("reward", reward)
-        self._episodic_update(task, reward, bool(is_success))
+        is_success = validation.flag("is_success", is_success)
+        self._episodic_update(task, reward, is_success)
         self.nb_episodes += 1
 
     def step_update(self, state, action, reward, next_state, done) -> None:
@@ -170,24 +176,22 @@ class Teacher(ABC):
         return np.divide(np.asarray(task) - self.mins, span, out=np.zeros(self.dim), where=span > 0)
 
     def _check_task(self, task) -> np.ndarray:
-        arr = np.asarray(task, dtype=np.float64)
-        if arr.shape != (self.dim,):
-            raise ValueError(
-                f"task: expected shape ({self.dim},) for {list(self.task_space.names)}, got {arr.shape}"
+        """A finite task of the right length, within SANE_TASK_MARGIN ranges of the bounds."""
+        arr = validation.real_array("task", task, shape=(self.dim,))
+        margin = SANE_TASK_MARGIN * np.maximum(self.maxs - self.mins, 1.0)
+        if np.any(arr < self.mins - margin) or np.any(arr > self.maxs + margin):
+            raise validation.fail(
+                "task",
+                task,
+                f"{self.dim} values for {list(self.task_space.names)} within"
+                f" {SANE_TASK_MARGIN:g} ranges of the bounds {self.mins.tolist()} .. {self.maxs.tolist()}",
             )
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"task: non-finite values {arr}")
         return arr
 
     @staticmethod
     def _check_scalar(what: str, value) -> float:
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"{what}: expected a finite number, got {value!r}") from None
-        if not math.isfinite(v):
-            raise ValueError(f"{what}: expected a finite number, got {value!r}")
-        return v
+        """A finite real number of sane size (returns beyond ±MAX_ABS_RETURN are corrupt data)."""
+        return validation.real(what, value, -MAX_ABS_RETURN, MAX_ABS_RETURN)
 
 
 # ---------------------------------------------------------------------- open-format state files

@@ -96,14 +96,20 @@ def fit_gmm(
     max_iter: int = 100,
     tol: float = 1e-3,
     reg_covar: float = 1e-6,
+    seed_columns=None,
 ) -> tuple[GaussianMixture, float]:
-    """EM for a full-covariance mixture; returns the best of `n_init` runs and its total log-lik."""
+    """EM for a full-covariance mixture; returns the best of `n_init` runs and its total log-lik.
+
+    `seed_columns` (indices, default all) are the columns the k-means++ seeding looks at: EM
+    itself is invariant to each column's scale, the Euclidean seeding is not.
+    """
     best, best_ll = None, -np.inf
     x2 = (x[:, :, None] * x[:, None, :]).reshape(len(x), -1)
     xt, x2t = np.ascontiguousarray(x.T), np.ascontiguousarray(x2.T)
     reg = reg_covar * np.eye(x.shape[1])
+    x_seed = x if seed_columns is None else x[:, seed_columns]
     for _ in range(n_init):
-        weights, means, covs = _m_step(x, x2, _kmeanspp_resp(x, k, rng).T, reg)
+        weights, means, covs = _m_step(x, x2, _kmeanspp_resp(x_seed, k, rng).T, reg)
         prev = -np.inf
         for _ in range(max_iter):
             log_p = _log_gauss(x2t, xt, means, covs) + np.log(weights)[:, None]
@@ -132,13 +138,13 @@ def gmm_fitness(name: str, log_lik: float, k: int, n: int, d: int) -> float:
     return -2.0 * log_lik + 2.0 * n_params + penalty
 
 
-def fit_best_gmm(x, ks, rng, fitness: str, n_init: int) -> GaussianMixture:
+def fit_best_gmm(x, ks, rng, fitness: str, n_init: int, seed_columns=None) -> GaussianMixture:
     """Fit one mixture per k and keep the fittest (k larger than the data size is skipped)."""
     best, best_score = None, np.inf
     for k in ks:
         if k > len(x):
             continue
-        gmm, ll = fit_gmm(x, int(k), rng, n_init=n_init)
+        gmm, ll = fit_gmm(x, int(k), rng, n_init=n_init, seed_columns=seed_columns)
         score = gmm_fitness(fitness, ll, int(k), len(x), x.shape[1])
         if score < best_score:
             best, best_score = gmm, score
@@ -283,10 +289,19 @@ class GMMTeacherBase(Teacher):
     def _component_weights(self) -> np.ndarray:
         raise NotImplementedError
 
+    def _seed_columns(self, n_columns: int) -> np.ndarray:
+        """Columns the k-means++ seeding of each fit uses (see the subclasses for why)."""
+        return np.arange(n_columns)
+
     def _fit(self, data: np.ndarray) -> None:
         em_rng = np.random.default_rng(int(self.rng.integers(2**63)))
         self.gmm = fit_best_gmm(
-            data, self.potential_ks, em_rng, self.gmm_fitness_func, self.nb_em_init
+            data,
+            self.potential_ks,
+            em_rng,
+            self.gmm_fitness_func,
+            self.nb_em_init,
+            self._seed_columns(data.shape[1]),
         )
         means, covs = self._in_task_units()
         self.bk["weights"].append(self.gmm.weights.copy())

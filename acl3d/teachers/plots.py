@@ -6,6 +6,8 @@ A teacher may define `plot_state() -> dict | None` describing its current distri
   {"kind": "box", "low": (d,), "high": (d,)}  (one box: ADR's range, the oracle's window)
   {"kind": "gaussian", "mean": (d,), "covariance": (d, d)}  (1- and 2-sigma ellipses)
   {"kind": "lesson", "index": int, "tasks": (n, d)}  (a list of lessons, the current one marked)
+  {"kind": "points", "points": (n, d), "values": (n,)}  (a level buffer coloured by score)
+"boxes" and "points" may carry a "label" for their colour bar.
 Anything else (or no plot_state) gives a plain scatter of the sampled tasks. Frames show the first
 two task dimensions (a 1-D space is drawn on a line) over an optional background grid, such as the
 toy environment's competence map.
@@ -33,11 +35,16 @@ class SamplingRecorder:
     """
 
     def __init__(
-        self, teacher, every: int = 250, background: Callable[[], np.ndarray] | None = None
+        self,
+        teacher,
+        every: int = 250,
+        background: Callable[[], np.ndarray] | None = None,
+        background_extent: tuple[float, float, float, float] | None = None,
     ):
         if every < 1:
             raise ValueError(f"every must be >= 1 episode, got {every!r}")
         self.teacher, self.every, self.background = teacher, int(every), background
+        self.background_extent = background_extent  # (x0, x1, y0, y1); default: the task space
         self.frames: list[dict[str, Any]] = []
         self._state = _plot_state(teacher)
         self._tasks: list[np.ndarray] = []
@@ -56,6 +63,7 @@ class SamplingRecorder:
                     "background": None
                     if self.background is None
                     else np.array(self.background(), dtype=np.float64),
+                    "background_extent": self.background_extent,
                 }
             )
             self._state = _plot_state(self.teacher)
@@ -114,9 +122,19 @@ def _draw_state(fig, ax, state: dict[str, Any] | None) -> str:
         for low, high, value in boxes:
             _rect(ax, low, high, facecolor=cmap(norm(value)), edgecolor="white", lw=0.8, alpha=0.8)
         fig.colorbar(
-            mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="Absolute Learning Progress"
+            mpl.cm.ScalarMappable(norm=norm, cmap=cmap),
+            ax=ax,
+            label=state.get("label", "Absolute Learning Progress"),
         )
         return f" | {len(boxes)} regions"
+    if kind == "points":
+        points = np.asarray(state["points"], dtype=np.float64)
+        if not len(points):
+            return " | empty buffer"
+        x, y = _xy(points)
+        art = ax.scatter(x, y, c=state["values"], cmap="viridis", s=10, marker="s", alpha=0.7)
+        fig.colorbar(art, ax=ax, label=state.get("label", "score"))
+        return f" | {len(points)} levels"
     if kind == "box":
         _rect(ax, state["low"], state["high"], facecolor=(1, 0, 0, 0.15), edgecolor="red", lw=2)
         return ""
@@ -161,7 +179,7 @@ def render_frame(
         ax.imshow(
             np.asarray(bg).T,
             origin="lower",
-            extent=(*x_lim, *y_lim),
+            extent=frame.get("background_extent") or (*x_lim, *y_lim),
             cmap="Greys",
             vmin=0,
             vmax=100,

@@ -13,6 +13,10 @@ Fixed bugs of the originals (TeachMyAgent / teachDeepRL), on purpose:
 - every draw uses the teacher's seeded generator (the originals' in-region draws were unseeded);
 - the mutation noise is 10% of each dimension's range (the originals: 0.1 in raw units);
 - only non-degenerate dimensions are split; a search that never yields a valid cut is bounded.
+
+Kept from the originals although it looks like a detail: while no region shows progress, a region
+is picked uniformly (not a uniform task), so the small regions that splits have carved out get
+sampled densely; on mostly-unfeasible spaces this is what finds the learnable corner.
 """
 
 from __future__ import annotations
@@ -222,9 +226,9 @@ class RIAC(Teacher):
     def _sample(self) -> np.ndarray:
         mode = self.rng.random()
         ids, alps = self._region_alps()
-        if P_MUTATE <= mode < P_MUTATE + P_UNIFORM or not alps.sum() > 0:
+        if P_MUTATE <= mode < P_MUTATE + P_UNIFORM:
             return self.uniform_task()
-        region = int(ids[pick_proportional(self.rng, alps)])
+        region = int(ids[pick_proportional(self.rng, alps)])  # uniform over regions if no ALP
         low, high = self.low[region], self.high[region]
         if mode < P_MUTATE and self.rewards[region]:
             worst = self.tasks[region][int(np.argmin(self.rewards[region]))]
@@ -234,8 +238,6 @@ class RIAC(Teacher):
 
     def _non_exploratory_sample(self) -> np.ndarray:
         ids, alps = self._region_alps()
-        if not alps.sum() > 0:
-            return self.uniform_task()
         region = int(ids[pick_proportional(self.rng, alps)])
         return self.rng.uniform(self.low[region], self.high[region])
 
