@@ -1,7 +1,8 @@
-"""Text labels burnt into video frames: a dimmed box with a few lines of text, top-left.
+"""Text labels burnt into video frames: a dimmed box with a few lines of text in a corner.
 
-Text is drawn with Pillow (already installed as a matplotlib dependency) on the label's crop
-only, so a label costs a fraction of a millisecond on a 640x480 frame (see the README's numbers).
+Pillow (installed with matplotlib) draws each character once per size; lines are assembled from
+those cached glyphs and blended into the frame with integer numpy arithmetic, so a label costs
+a fraction of a millisecond on a 640x480 frame (`scripts/bench_render.py` measures it).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def _font(size: int):
 
 
 def font_size_for(height: int) -> int:
-    """A readable text size for frames `height` pixels tall (11 px at 240, 16 px at 480)."""
+    """A readable text size for frames `height` pixels tall (10 px up to 300, 16 px at 480)."""
     return int(np.clip(round(height / 30), 10, 28))
 
 
@@ -66,6 +67,8 @@ def draw_label(
         )
     if corner not in ("top-left", "bottom-left"):
         raise ValueError(f"corner={corner!r}; valid: 'top-left', 'bottom-left'")
+    if size is not None and (not isinstance(size, int) or isinstance(size, bool) or size < 4):
+        raise ValueError(f"size={size!r}; valid: an integer >= 4 (pixels)")
     masks = [_line_mask(line, size or font_size_for(frame.shape[0])) for line in lines if line]
     if not masks:
         return frame
