@@ -238,9 +238,10 @@ def test_periodical_samples_every_k_steps():
         c.maybe_sample_periodically(s) is not None for s in (0, 999, 1000, 1500, 2100, 2200, 5000)
     ]
     assert taken == [False, False, True, False, True, False, True]
-    samples = c._records["periodical_samples"]
+    records = c.state_dict()["records"]
+    samples = records["periodical_samples"]
     assert len(samples) == 3 and samples[0].shape == (100, 4) and samples[0].dtype == np.float32
-    assert c._records["periodical_steps"] == [1000, 2100, 5000]
+    assert records["periodical_steps"].tolist() == [1000, 2100, 5000]
     assert TeacherController("random", MIXED, 0).maybe_sample_periodically(10**9) is None
 
 
@@ -262,7 +263,7 @@ def test_shuffled_controller_round_trips_tasks_to_the_teacher():
     )
     play(c, 20)
     np.testing.assert_allclose(np.array(got), np.array(raw), atol=1e-5)
-    env_tasks = np.array(c._records["sampled_tasks"])
+    env_tasks = c.state_dict()["records"]["sampled_tasks"]
     assert not np.allclose(env_tasks, np.array(raw))  # the environment saw shuffled tasks
     assert TaskSpace.coerce(MIXED).contains(env_tasks.max(axis=0)) and np.all(
         env_tasks.min(axis=0) >= -1
@@ -447,7 +448,7 @@ def test_test_episodes_are_recorded():
     c = TeacherController("random", STUMPS, 0)
     for task in c.test_tasks()[:3]:
         c.record_test_episode(task, 240.0, 2000, True)
-    assert c._records["test_returns"] == [240.0] * 3
+    assert c.state_dict()["records"]["test_returns"].tolist() == [240.0] * 3
     with pytest.raises(ValueError, match="env_task"):
         c.record_test_episode([1.0], 0.0, 1)
 
@@ -473,7 +474,7 @@ def test_dump_is_readable_without_pickle(tmp_path):
     assert len(meta["periodical_samples"]) == 1
     assert "tasks_origin" in meta["teacher_bk"]
     full = load_state(tmp_path / "teacher_dump")  # the same files through the library's reader
-    np.testing.assert_array_equal(full["train_returns"], c._records["train_returns"])
+    np.testing.assert_array_equal(full["train_returns"], c.state_dict()["records"]["train_returns"])
 
 
 @pytest.mark.parametrize("name", ["alp-gmm", "self-paced", "goal-gan", "setter-solver"])
