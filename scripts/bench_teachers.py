@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from acl3d.teachers import TEACHERS, make, teacher_class
-from acl3d.teachers.controller import DimensionsShuffler
+from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
 from acl3d.teachers.presets import PRESETS, preset_params
 from acl3d.toy import ToyEnv, run_teacher, toy_teacher_params
 
