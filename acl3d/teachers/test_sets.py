@@ -8,6 +8,9 @@ Files are open formats:
   (missing parameters take their default);
 * CSV: a header of flat names (`name` or `name[i]`), one task per row.
 Columns are matched by name, so their order in the file does not matter.
+
+Named sets ("walking", ...) and the default set's fixed grid belong to the environment: they come
+from its `CurriculumProfile` (`resolve(..., profile=env.unwrapped.curriculum_profile)`).
 """
 
 from __future__ import annotations
