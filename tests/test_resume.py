@@ -178,6 +178,18 @@ def test_refused_resume_changes_nothing(reference, tmp_path, capsys):
     assert {name: (run / name).read_bytes() for name in files} == before
 
 
+def test_run_killed_after_its_last_checkpoint_finishes_on_resume(reference, tmp_path):
+    run = tmp_path / "almost"
+    shutil.copytree(reference("sac-1"), run)
+    (run / "final_model.zip").unlink()
+    RunDir(run).set_status("running")
+    evals = (run / "evals.csv").read_bytes()
+    assert main(["train", "--resume", str(run), "--no-progress", "--quiet"]) == 0
+    assert RunDir(run).status() == "finished"
+    assert (run / "evals.csv").read_bytes() == evals  # nothing trained or evaluated again
+    assert_same_run(reference("sac-1"), run)
+
+
 class CountingCallback(BaseCallback):
     """A user's own SB3 callback."""
 

@@ -238,6 +238,11 @@ class RunDir:
             raise ValueError(f"{str(self.path)!r} is not a run directory (no config.yaml)")
         return yaml.safe_load(self.config_yaml.read_text())[name]
 
+    def status(self) -> str | None:
+        """running | finished | interrupted | crashed, or None before the first start."""
+        path = self.path / "status.json"
+        return json.loads(path.read_text())["status"] if path.exists() else None
+
     def set_status(self, status: str, **extra) -> None:
         atomic_write(self.path / "status.json", json.dumps({"status": status, **extra}, indent=2))
 

@@ -82,7 +82,7 @@ def train(
         run.check_new()
         resume_from, start = None, 0
     validate(config)
-    target = _target_steps(config, start)
+    target = _target_steps(config, start, finished=run.status() == "finished")
     session = Session(config, run, resume_from)  # builds the controller: fails before any worker
     sections = {
         "student_hyperparameters": session.params,
@@ -137,12 +137,13 @@ def _resumed_config(run: RunDir, changes: dict) -> TrainConfig:
     )
 
 
-def _target_steps(config: TrainConfig, start: int) -> int:
+def _target_steps(config: TrainConfig, start: int, finished: bool) -> int:
     """The step count the run trains to: `steps` rounded up to whole SB3 collections (said up
-    front when it differs); refuses a budget the run has already reached."""
+    front when it differs). A finished run that already has `steps` is refused; an unfinished one
+    (killed after its last checkpoint) only writes its final model."""
     unit = steps_per_collection(config.student, student_params(config), config.n_envs)
     target = start + round_steps(max(0, config.steps - start), unit)
-    if start >= config.steps:
+    if start >= config.steps and finished:
         raise ValueError(
             f"steps={config.steps}: the run already has {start} steps; pass a larger steps "
             "value to extend it"
@@ -176,13 +177,14 @@ def _run(session: Session, target: int, user_callbacks: list[BaseCallback]) -> T
             if session.resume_from is not None:
                 for path in (run.evals_csv, run.evals_tasks_csv, run.episodes_csv):
                     truncate_csv(path, "step", start)
-            model.learn(
-                total_timesteps=target - start,
-                callback=CallbackList([*run_callbacks(session, start), *user_callbacks]),
-                progress_bar=config.progress_bar,
-                reset_num_timesteps=session.resume_from is None,
-                tb_log_name="train",
-            )
+            if target > start:
+                model.learn(
+                    total_timesteps=target - start,
+                    callback=CallbackList([*run_callbacks(session, start), *user_callbacks]),
+                    progress_bar=config.progress_bar,
+                    reset_num_timesteps=session.resume_from is None,
+                    tb_log_name="train",
+                )
             session.save_final_model()
             session.dump_teacher()
     except KeyboardInterrupt:
