@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.teachers.base import Teacher
 
 MAX_PENDING = 4096  # boundary-sampled tasks awaiting their return (older ones are forgotten)
@@ -48,19 +49,12 @@ class ADR(Teacher):
         initial_dist: dict | None = None,
     ):
         super().__init__(task_space, seed)
-        if not (np.isfinite(step_size) and step_size > 0):
-            raise ValueError(
-                f"step_size must be a finite number > 0 (task units), got {step_size!r}"
-            )
-        if not 0.0 <= float(boundary_sampling_p) <= 1.0:
-            raise ValueError(f"boundary_sampling_p must be in [0, 1], got {boundary_sampling_p!r}")
-        if not isinstance(queue_len, (int, np.integer)) or queue_len < 1:
-            raise ValueError(f"queue_len must be an integer >= 1, got {queue_len!r}")
-        if not (
-            np.isfinite(min_reward_thr)
-            and np.isfinite(max_reward_thr)
-            and min_reward_thr < max_reward_thr
-        ):
+        validation.positive("step_size", step_size)
+        validation.real("boundary_sampling_p", boundary_sampling_p, 0.0, 1.0)
+        validation.count("queue_len", queue_len)
+        validation.real("min_reward_thr", min_reward_thr)
+        validation.real("max_reward_thr", max_reward_thr)
+        if not min_reward_thr < max_reward_thr:
             raise ValueError(
                 f"need finite min_reward_thr < max_reward_thr, got {min_reward_thr!r} and {max_reward_thr!r}"
             )

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.teachers.base import Teacher
 
 _FITNESS = ("aic", "bic", "aicc")
@@ -164,26 +165,21 @@ def check_common_params(
     fit_rate, nb_bootstrap, random_task_ratio, potential_ks, gmm_fitness_func, nb_em_init
 ):
     """Validate the parameters ALP-GMM and Covar-GMM share; returns (nb_bootstrap, ks)."""
-    if not isinstance(fit_rate, (int, np.integer)) or fit_rate < 2:
-        raise ValueError(f"fit_rate must be an integer >= 2, got {fit_rate!r}")
+    fit_rate = validation.count("fit_rate", fit_rate, minimum=2)
     nb_bootstrap = fit_rate if nb_bootstrap is None else nb_bootstrap
-    if not isinstance(nb_bootstrap, (int, np.integer)) or nb_bootstrap < 0:
-        raise ValueError(
-            f"nb_bootstrap must be a non-negative integer or None, got {nb_bootstrap!r}"
-        )
-    if not 0.0 <= float(random_task_ratio) <= 1.0:
-        raise ValueError(f"random_task_ratio must be in [0, 1], got {random_task_ratio!r}")
-    ks = [int(k) for k in np.atleast_1d(np.asarray(potential_ks))]
-    if not ks or min(ks) < 1:
-        raise ValueError(
-            f"potential_ks must be a non-empty list of integers >= 1, got {potential_ks!r}"
-        )
+    nb_bootstrap = validation.count("nb_bootstrap", nb_bootstrap, minimum=0)
+    validation.real("random_task_ratio", random_task_ratio, 0.0, 1.0)
+    ks_list = (
+        list(potential_ks) if isinstance(potential_ks, (list, tuple, range, np.ndarray)) else []
+    )
+    if not ks_list:
+        raise validation.fail("potential_ks", potential_ks, "a non-empty list of integers >= 1")
+    ks = [validation.count("potential_ks", k) for k in ks_list]
     if min(ks) > fit_rate:
         raise ValueError(f"potential_ks {ks} all exceed fit_rate {fit_rate} (points per fit)")
     if gmm_fitness_func not in _FITNESS:
         raise ValueError(f"gmm_fitness_func must be one of {_FITNESS}, got {gmm_fitness_func!r}")
-    if not isinstance(nb_em_init, (int, np.integer)) or nb_em_init < 1:
-        raise ValueError(f"nb_em_init must be an integer >= 1, got {nb_em_init!r}")
+    validation.count("nb_em_init", nb_em_init)
     return int(nb_bootstrap), ks
 
 

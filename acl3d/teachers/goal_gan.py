@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from acl3d import validation
 from acl3d.teachers.base import Teacher
 from acl3d.teachers.torch_utils import (
     check_positive,
@@ -79,7 +80,10 @@ class GoalGAN(Teacher):
         )
         self.update_size = check_positive("update_size", update_size, integer=True)
         self.n_rollouts = check_positive("n_rollouts", n_rollouts, integer=True)
-        if not 0.0 <= float(goid_lb) <= float(goid_ub) <= 1.0:
+        validation.real("goid_lb", goid_lb, 0.0, 1.0)
+        validation.real("goid_ub", goid_ub, 0.0, 1.0)
+        validation.real("p_old", p_old, 0.0, 1.0)
+        if not goid_lb <= goid_ub:
             raise ValueError(
                 f"goid_lb and goid_ub must satisfy 0 <= goid_lb <= goid_ub <= 1, got {goid_lb!r}, {goid_ub!r}"
             )

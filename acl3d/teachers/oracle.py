@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.teachers.base import Teacher
 
 
@@ -41,12 +42,9 @@ class Oracle(Teacher):
                 raise ValueError(
                     f"window_step_vector must hold {self.dim} finite values, got {window_step_vector!r}"
                 )
-        if not isinstance(step_rate, (int, np.integer)) or step_rate < 1:
-            raise ValueError(f"step_rate must be an integer >= 1, got {step_rate!r}")
-        if not np.isfinite(reward_thr):
-            raise ValueError(f"reward_thr must be finite, got {reward_thr!r}")
-        if not 0.0 < float(window_ratio) <= 1.0:
-            raise ValueError(f"window_ratio must be in (0, 1], got {window_ratio!r}")
+        validation.count("step_rate", step_rate)
+        validation.real("reward_thr", reward_thr)
+        validation.real("window_ratio", window_ratio, 0.0, 1.0, exclusive_low=True)
         self.step = step
         self.step_rate = int(step_rate)
         self.reward_thr = float(reward_thr)

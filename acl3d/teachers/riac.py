@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from acl3d import validation
 from acl3d.teachers.base import Teacher
 from acl3d.teachers.gmm import pick_proportional
 
@@ -83,28 +84,14 @@ class RIAC(Teacher):
         sampling_in_leaves_only: bool = False,
     ):
         super().__init__(task_space, seed)
-        if not isinstance(max_region_size, (int, np.integer)) or max_region_size < 2:
-            raise ValueError(f"max_region_size must be an integer >= 2, got {max_region_size!r}")
+        max_region_size = validation.count("max_region_size", max_region_size, minimum=2)
         alp_window_size = max_region_size if alp_window_size is None else alp_window_size
-        if not isinstance(alp_window_size, (int, np.integer)) or alp_window_size < 2:
-            raise ValueError(
-                f"alp_window_size must be an integer >= 2 or None, got {alp_window_size!r}"
-            )
-        if not isinstance(nb_split_attempts, (int, np.integer)) or nb_split_attempts < 1:
-            raise ValueError(
-                f"nb_split_attempts must be an integer >= 1, got {nb_split_attempts!r}"
-            )
+        validation.count("alp_window_size", alp_window_size, minimum=2)
+        validation.count("nb_split_attempts", nb_split_attempts)
         min_region_size = max_region_size / 20 if min_region_size is None else min_region_size
-        if not 0 <= float(min_region_size) <= (max_region_size + 1) / 2:
-            raise ValueError(
-                f"min_region_size must be in [0, (max_region_size + 1) / 2 = {(max_region_size + 1) / 2}], got {min_region_size!r}"
-            )
-        if not 0.0 <= float(min_dims_range_ratio) < 0.5:
-            raise ValueError(
-                f"min_dims_range_ratio must be in [0, 0.5), got {min_dims_range_ratio!r}"
-            )
-        if not 0.0 < float(discard_ratio) <= 1.0:
-            raise ValueError(f"discard_ratio must be in (0, 1], got {discard_ratio!r}")
+        validation.real("min_region_size", min_region_size, 0, (max_region_size + 1) / 2)
+        validation.real("min_dims_range_ratio", min_dims_range_ratio, 0.0, 0.4999999)
+        validation.real("discard_ratio", discard_ratio, 0.0, 1.0, exclusive_low=True)
         self.max_region_size = int(max_region_size)
         self.alp_window_size = int(alp_window_size)
         self.nb_split_attempts = int(nb_split_attempts)

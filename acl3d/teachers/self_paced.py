@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from torch.distributions import MultivariateNormal, kl_divergence
 
+from acl3d import validation
 from acl3d.teachers.base import Teacher
 from acl3d.teachers.torch_utils import check_positive
 
@@ -103,8 +104,7 @@ class SelfPaced(Teacher):
         self.max_context_buffer_size = check_positive(
             "max_context_buffer_size", max_context_buffer_size, integer=True
         )
-        if not 0.0 < float(discount_factor) <= 1.0:
-            raise ValueError(f"discount_factor must be in (0, 1], got {discount_factor!r}")
+        validation.real("discount_factor", discount_factor, 0.0, 1.0, exclusive_low=True)
         self.discount_factor = float(discount_factor)
         self.use_avg_performance = bool(use_avg_performance)
         self.reset_contexts = bool(reset_contexts)

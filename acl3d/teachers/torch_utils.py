@@ -7,32 +7,20 @@ plain numpy arrays, so a saved teacher resumes bit-for-bit.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from acl3d import validation
+
 
 def check_positive(name: str, value, integer: bool = False, allow_zero: bool = False):
     """Validate a hyperparameter: finite, > 0 (or >= 0), integer if asked; raise naming it."""
-    ok = (
-        isinstance(value, (int, np.integer))
-        if integer
-        else isinstance(value, (int, float, np.number))
-    )
-    if (
-        not ok
-        or isinstance(value, bool)
-        or not math.isfinite(value)
-        or value < 0
-        or (value == 0 and not allow_zero)
-    ):
-        kind = "integer" if integer else "number"
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be a finite {kind} {bound}, got {value!r}")
-    return int(value) if integer else float(value)
+    if integer:
+        return validation.count(name, value, minimum=0 if allow_zero else 1)
+    return validation.positive(name, value, allow_zero=allow_zero)
 
 
 def seeded_generator(seed: int) -> torch.Generator:
