@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from acl3d import validation
 from acl3d.overlay import draw_label, episode_lines
 from acl3d.video import open_sink, tile
 
@@ -76,10 +77,10 @@ def task_vectors(env, tasks: Sequence) -> list[np.ndarray]:
     return out
 
 
-def _check_playback(max_steps: int, every: int) -> None:
-    for name, value in (("max_steps", max_steps), ("every", every)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name}={value!r}; valid: an integer >= 1")
+def _check_playback(max_steps: int, every: int, seed) -> None:
+    validation.count("max_steps", max_steps)
+    validation.count("every", every)
+    validation.seed(seed)
 
 
 def record_rollouts(
@@ -125,7 +126,7 @@ def record_grid(
     A cell whose episode is over holds its last frame until every cell has finished. Returns
     one list of episode summaries per player.
     """
-    _check_playback(max_steps, every)
+    _check_playback(max_steps, every, seed)
     if not players:
         raise ValueError("record_grid: at least one player is needed")
     cols = cols or math.ceil(math.sqrt(len(players)))
