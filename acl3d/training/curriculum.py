@@ -25,10 +25,9 @@ from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.wrappers import PassiveEnvChecker
+from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, TimeLimit
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from acl3d.envs import env_state
 from acl3d.envs.track_task import SUCCESS_RETURN as SUCCESS_THRESHOLD
 
 INFO_KEY = "curriculum"
@@ -136,11 +135,11 @@ class CurriculumEnv(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def get_state(self) -> dict:
-        """Queue, running episode and the wrapped env's state (`acl3d.envs.env_state.get_env_state`:
-        its `get_state()` plus Gymnasium's wrapper counters): what a checkpoint needs to continue
-        this worker's episode exactly. JSON scalars and numpy arrays; `"env"` is None for an env
-        without `get_state()` (its episode then cannot be continued)."""
-        has_state = hasattr(self.env.unwrapped, "get_state")
+        """Queue, running episode and the env's own `get_state()`: what a checkpoint needs to
+        continue this worker's episode exactly (the same layout as a batched sub-env's, so a run
+        may resume on another vec env kind). JSON scalars and numpy arrays; `"env"` is None for
+        an env without `get_state()` (its episode then cannot be continued)."""
+        inner = self.env.unwrapped
         return {
             "queue": np.stack(self._queue) if self._queue else np.zeros((0, 0), np.float32),
             "task": None if self._task is None else np.asarray(self._task, dtype=np.float32),
@@ -148,14 +147,14 @@ class CurriculumEnv(gym.Wrapper):
             "length": self._length,
             "initial_obs": self._initial_obs,
             "last_obs": self._last_obs,
-            "env": env_state.get_env_state(self.env) if has_state else None,
+            "env": inner.get_state() if hasattr(inner, "get_state") else None,
         }
 
     def set_state(self, state: dict) -> None:
         """Inverse of `get_state()` (on a worker built with the same arguments)."""
         if state["env"] is not None:
-            env_state.set_env_state(self.env, state["env"])
-            _skip_passive_checks(self.env)
+            self.env.unwrapped.set_state(state["env"])
+            _restore_wrappers(self.env, int(state["length"]))
         self._queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
         self._task = None if state["task"] is None else np.asarray(state["task"], np.float32)
         self._return, self._length = float(state["return"]), int(state["length"])
@@ -168,11 +167,16 @@ class CurriculumEnv(gym.Wrapper):
         return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
 
 
-def _skip_passive_checks(env) -> None:
-    """Gymnasium's PassiveEnvChecker checks the first reset and steps against each other; a
-    restored env had those long ago (and the checker's reference data is not state)."""
+def _restore_wrappers(env, length: int) -> None:
+    """Gymnasium's wrappers of a restored env, as after `length` steps of a running episode:
+    TimeLimit's step count, OrderEnforcing's reset flag, and PassiveEnvChecker's once-only
+    checks marked done (its reference data from the first reset is not state)."""
     while isinstance(env, gym.Wrapper):
-        if isinstance(env, PassiveEnvChecker):
+        if isinstance(env, TimeLimit):
+            env._elapsed_steps = length
+        elif isinstance(env, OrderEnforcing):
+            env._has_reset = True
+        elif isinstance(env, PassiveEnvChecker):
             env.checked_reset = env.checked_step = env.checked_data_reuse = True
         env = env.env
 

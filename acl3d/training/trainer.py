@@ -31,10 +31,11 @@ from acl3d.training.config import (
 from acl3d.training.run_dir import RunDir, read_csv, truncate_csv
 from acl3d.training.session import Session
 
-# Options a resumed run may change (runtime settings, and `steps` to extend it).
+# Options a resumed run may change (runtime settings, and `steps` to extend it). Not the vec env
+# kind or envs per worker: an in-process batched env pulls each task at its reset, worker
+# processes get theirs pushed one episode ahead, so the teacher sees a different order.
 RESUME_MAY_CHANGE = (
-    "steps", "progress_bar", "verbose", "vec_env", "envs_per_worker", "start_method",
-    "torch_threads", "eval_envs",
+    "steps", "progress_bar", "verbose", "start_method", "torch_threads", "eval_envs",
 )  # fmt: skip
 
 
