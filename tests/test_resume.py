@@ -101,7 +101,7 @@ def test_sigkilled_run_resumes_bit_identically(setup, reference, tmp_path):
         deadline = time.monotonic() + 300
         while read_latest(out) is None and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.005)
-        time.sleep(np.random.default_rng().uniform(0, 0.3))  # any moment after the checkpoint
+        time.sleep(np.random.default_rng().uniform(0, 0.1))  # any moment after the checkpoint
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         _, err = proc.communicate(timeout=60)
