@@ -1,6 +1,8 @@
 """Property tests of the env inputs: valid input is accepted, invalid input is a ValueError naming
 the parameter, and a rejected call leaves the env's state exactly as it was."""
 
+import os
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -11,8 +13,14 @@ from acl3d.bodies import make_body
 from acl3d.task_space import TaskSpace
 from acl3d.terrain.parkour import BUILDABLE as PARKOUR_BUILDABLE
 
+# the suite replays the same 40 examples per test (reproducible CI); a fuzzing session draws
+# fresh ones: ACL3D_FUZZ_EXAMPLES=1000 python -m pytest tests/test_fuzz_envs.py
+EXAMPLES = int(os.environ.get("ACL3D_FUZZ_EXAMPLES", "0"))
 FUZZ = settings(
-    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=EXAMPLES or 40,
+    derandomize=not EXAMPLES,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
 )
 STUMP_BUILDABLE = {"stump_height": (-5.0, 19.0), "obstacle_spacing": (0.0, 93.0)}
 
