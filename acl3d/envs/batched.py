@@ -148,8 +148,8 @@ class BatchedEnvs:
             self._batch.prepare(a)
             self._run(self._batch.physics)
             obs, rewards, terminated, unstable = self._batch.finish(a)
-            success = self._batch.episode_return > SUCCESS_RETURN
-            infos = [{"success": bool(s)} for s in success.tolist()]
+            success = (self._batch.episode_return > SUCCESS_RETURN).tolist()
+            infos = [{"success": s} for s in success]
             for i in np.flatnonzero(unstable):
                 infos[i]["unstable"] = True
         else:

@@ -36,7 +36,6 @@ class SubEnv:
         self.env = owner.batch.envs[index]
         self.queue: deque[np.ndarray] = deque()
         self.task = None
-        self.episode_return = 0.0
         self.initial_obs = None
         self.last_obs = None
         self.start_time = 0.0
@@ -77,9 +76,13 @@ class SubEnv:
         batch.restored(self._index)
         self.queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
         self.task = None if state["task"] is None else np.asarray(state["task"], np.float32)
-        self.episode_return = float(state["return"])
+        self._owner.returns[self._index] = float(state["return"])
         batch.elapsed[self._index] = int(state["length"])
         self.initial_obs, self.last_obs = state["initial_obs"], state["last_obs"]
+
+    @property
+    def episode_return(self) -> float:
+        return float(self._owner.returns[self._index])
 
     # ------------------------------------------------------------------ the single env
     def __getattr__(self, name):
@@ -104,7 +107,7 @@ class SubEnv:
                 )
         obs, info = owner.batch.reset_one(self._index, seed, options)
         self.task = options.get("task", self.env.task_vector)
-        self.episode_return = 0.0
+        owner.returns[self._index] = 0.0
         self.initial_obs = self.last_obs = obs
         self.start_time = time.perf_counter()
         return obs, info
@@ -144,6 +147,7 @@ class BatchedVecEnv(VecEnv):
         **env_kwargs,
     ):
         self.batch = BatchedEnvs(env_id, num_envs, threads, max_episode_steps, **env_kwargs)
+        self.returns = np.zeros(self.batch.num_envs)  # of the running episodes
         self.subenvs = [SubEnv(self, i) for i in range(self.batch.num_envs)]
         super().__init__(
             self.batch.num_envs, self.batch.single_observation_space, self.batch.single_action_space
@@ -170,8 +174,7 @@ class BatchedVecEnv(VecEnv):
         obs, rewards, terminated, truncated, infos = self.batch.step(actions)
         dones = terminated | truncated
         subenvs = self.subenvs
-        for i, r in enumerate(rewards.tolist()):
-            subenvs[i].episode_return += r
+        self.returns += rewards
         for i in np.flatnonzero(dones):
             info = infos[i]
             info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])

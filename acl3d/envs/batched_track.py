@@ -54,15 +54,21 @@ class TrackBatch:
         self._caps = [env.model.actuator_forcerange[slice(None) if whole else ids] for env in envs]
         self._ctrl = [env.data.ctrl for env in envs]
         self._ctrl_index = slice(None) if whole else ids
-        self._views = {
+        # (rows of the gathered state, per env the live view copied into it after its step)
+        views = {
             "qpos": [env.data.qpos for env in envs],
             "qvel": [env.data.qvel for env in envs],
             "root_xpos": [env.data.xpos[root] for env in envs],
             "root_xmat": [env.data.xmat[root] for env in envs],
-            "warnings": [env.data.warning.number for env in envs],
+            "warning_counts": [env.data.warning.number for env in envs],
         }
         if not self.planar:
-            self._views["root_cvel"] = [env.data.cvel[root] for env in envs]
+            views["root_cvel"] = [env.data.cvel[root] for env in envs]
+        self._copies = []
+        for name, per_env in views.items():
+            rows = np.zeros((n, *per_env[0].shape), dtype=per_env[0].dtype)
+            setattr(self, name, rows)
+            self._copies.append((rows, per_env))
         self._geom1 = [np.zeros(0, dtype=int)] * n
         self._geom2 = [np.zeros(0, dtype=int)] * n
         self._row_offsets = np.arange(n) * e.model.ngeom
@@ -105,21 +111,20 @@ class TrackBatch:
 
     def physics(self, lo: int, hi: int) -> None:
         """Envs lo..hi-1: set the servos, step (GIL released), note the contacting geoms."""
-        caps, ctrl, index = self._caps, self._ctrl, self._ctrl_index
+        caps, ctrl, index, copies = self._caps, self._ctrl, self._ctrl_index, self._copies
         for i in range(lo, hi):
             caps[i][:] = self._servo[i]
             ctrl[i][index] = self._targets[i]
             self.physics_states[i].step()
+            for rows, views in copies:
+                rows[i] = views[i]
             d = self.datas[i]
             n = d.ncon
             contact = d.contact
             self._geom1[i], self._geom2[i] = contact.geom1[:n], contact.geom2[:n]
 
-    def _gather(self) -> None:
-        """Copy the state rows the task reads from every env (after all physics ran)."""
-        for name, views in self._views.items():
-            setattr(self, name, np.stack(views))
-        self.warnings = self.warnings[:, _BADQACC]
+    def _gather_contacts(self) -> None:
+        """Flag the geoms each env's contacts touch (after all physics ran)."""
         touched = self.touched
         touched[:] = False
         counts = [len(g) for g in self._geom1]
@@ -131,7 +136,7 @@ class TrackBatch:
 
     def finish(self, actions: np.ndarray):
         """(obs float32 (N, obs), rewards, terminated, unstable) after `physics` ran for all."""
-        self._gather()
+        self._gather_contacts()
         head = self._head()
         x = self.root_xpos[:, 0]
         shaping = PROGRESS_GAIN * x
@@ -156,8 +161,9 @@ class TrackBatch:
             self.critical_contact = self.touched[:, self.critical].any(axis=1)
         fail = self.critical_contact | (x < 0.0)
         reward = np.where(fail, FAIL_REWARD, reward)
-        unstable = self.warnings > self.warnings_seen
-        self.warnings_seen[:] = self.warnings
+        warnings = self.warning_counts[:, _BADQACC]
+        unstable = warnings > self.warnings_seen
+        self.warnings_seen[:] = warnings
         terminated = fail | (x > self.end_x) | unstable
         self.episode_return += reward
         return obs.astype(np.float32), reward, terminated, unstable
