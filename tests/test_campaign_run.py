@@ -118,7 +118,12 @@ def test_campaign_dir_holding_another_campaign_is_refused(tmp_path):
     other = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 1024})
     with pytest.raises(ValueError, match="holds campaign 'quick' with other runs"):
         run_campaign(other, tmp_path, executor="local")
+    more_seeds = load_spec("quick").scaled(seeds=2, sets={**TINY, "steps": 512})
+    camp.prepare(more_seeds, more_seeds.expand(), {})  # a campaign may grow
+    assert [r["name"] for r in camp.read()["runs"]] == [r.name for r in more_seeds.expand()]
+    with pytest.raises(ValueError, match="with other runs"):  # but not shrink
+        camp.prepare(spec, spec.expand(), {})
     with pytest.raises(ValueError, match="executor 'slurm' unknown"):
-        run_campaign(spec, tmp_path, executor="slurm")
+        run_campaign(more_seeds, tmp_path, executor="slurm")
     with pytest.raises(ValueError, match="max_parallel must be an integer >= 1"):
-        run_campaign(spec, tmp_path, executor="local", max_parallel=0)
+        run_campaign(more_seeds, tmp_path, executor="local", max_parallel=0)

@@ -6,7 +6,8 @@
     DIR/.lock             pid of the campaign process using the directory
 
 Running the same campaign again into the same directory continues it: finished runs are
-skipped, runs with a checkpoint resume from it, the rest start afresh. Each run gets
+skipped, runs with a checkpoint resume from it, the rest start afresh. A campaign may grow
+(more seeds: its runs a superset of the directory's), never change. Each run gets
 `1 + retries` attempts per invocation.
 """
 
@@ -63,12 +64,14 @@ class CampaignDir:
         }
         if self.manifest.exists():
             old = self.read()
-            if _comparable(old["runs"]) != _comparable(doc["runs"]):
+            if not _comparable(old["runs"]) <= _comparable(doc["runs"]):
                 raise ValueError(
                     f"{str(self.path)!r} holds campaign {old['spec']['name']!r} with other runs "
-                    "or options; continue it with the same spec and options, or choose another --out"
+                    "or options; continue it with the same spec and options (more --seeds may be "
+                    "added), or choose another --out"
                 )
-            return
+            if _comparable(old["runs"]) == _comparable(doc["runs"]):
+                return
         self.path.mkdir(parents=True, exist_ok=True)
         tmp = self.manifest.with_name(MANIFEST + ".tmp")
         tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -90,8 +93,8 @@ class CampaignDir:
             path.unlink(missing_ok=True)
 
 
-def _comparable(runs: list[dict]) -> list:
-    return sorted((r["name"], json.dumps(r["options"], sort_keys=True)) for r in runs)
+def _comparable(runs: list[dict]) -> set:
+    return {(r["name"], json.dumps(r["options"], sort_keys=True)) for r in runs}
 
 
 def _alive(pid) -> bool:
