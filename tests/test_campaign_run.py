@@ -123,7 +123,12 @@ def test_campaign_dir_holding_another_campaign_is_refused(tmp_path):
     assert [r["name"] for r in camp.read()["runs"]] == [r.name for r in more_seeds.expand()]
     with pytest.raises(ValueError, match="with other runs"):  # but not shrink
         camp.prepare(spec, spec.expand(), {})
-    with pytest.raises(ValueError, match="executor 'slurm' unknown"):
-        run_campaign(more_seeds, tmp_path, executor="slurm")
-    with pytest.raises(ValueError, match="max_parallel must be an integer >= 1"):
-        run_campaign(more_seeds, tmp_path, executor="local", max_parallel=0)
+    for bad, message in [
+        ({"executor": "slurm"}, "executor 'slurm' unknown"),
+        ({"executor": "local", "max_parallel": 0}, "max_parallel must be an integer >= 1"),
+        ({"executor": "local", "address": "10.0.0.1:6379"}, "ray executor only"),
+        ({"retries": -1}, "retries must be an integer >= 0"),
+    ]:
+        with pytest.raises(ValueError, match=message):  # refused before the directory changes
+            run_campaign(load_spec("quick").scaled(seeds=3), tmp_path, **bad)
+    assert len(camp.read()["runs"]) == 4

@@ -34,22 +34,22 @@ class Outcome:
     retry: bool = True
 
 
-def _check_parallel(max_parallel) -> None:
+def check_executor(kind: str, max_parallel: int | None, address: str | None = None) -> None:
+    if kind not in EXECUTORS:
+        raise ValueError(f"executor {kind!r} unknown; valid: {', '.join(EXECUTORS)}")
     if max_parallel is not None and (
         isinstance(max_parallel, bool) or not isinstance(max_parallel, int) or max_parallel < 1
     ):
         raise ValueError(f"max_parallel must be an integer >= 1, got {max_parallel!r}")
+    if address is not None and kind != "ray":
+        raise ValueError("address applies to the ray executor only")
 
 
 def make_executor(kind: str, max_parallel: int | None, cpus: int, address: str | None = None):
-    _check_parallel(max_parallel)
+    check_executor(kind, max_parallel, address)
     if kind == "ray":
         return RayExecutor(max_parallel, cpus, address)
-    if kind == "local":
-        if address is not None:
-            raise ValueError("address applies to the ray executor only")
-        return LocalExecutor(max_parallel, cpus)
-    raise ValueError(f"executor {kind!r} unknown; valid: {', '.join(EXECUTORS)}")
+    return LocalExecutor(max_parallel, cpus)
 
 
 # ---------------------------------------------------------------------- local processes

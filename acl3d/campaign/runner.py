@@ -25,7 +25,7 @@ from pathlib import Path
 
 import yaml
 
-from acl3d.campaign.executors import Job, make_executor
+from acl3d.campaign.executors import Job, check_executor, make_executor
 from acl3d.campaign.progress import ProgressView
 from acl3d.campaign.run_state import read_state, record_failure
 from acl3d.campaign.spec import CampaignSpec, RunSpec
@@ -127,6 +127,7 @@ def run_campaign(
     """Run (or continue) every run of `spec` under `out`; returns the finished and failed names."""
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+    check_executor(executor, max_parallel, address)
     runs = spec.expand()
     cpus = {cpus_of(r.options) for r in runs}
     if len(cpus) != 1:
