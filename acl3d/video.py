@@ -61,7 +61,8 @@ class StripSink:
     """A PNG with one row per episode of `per_episode` frames evenly spread over the episode.
 
     Episode lengths are not known in advance, so frames are kept at a stride that doubles whenever
-    more than 2 x `per_episode` are held: memory stays bounded and the kept frames stay even.
+    more than 4 x `per_episode` are held (memory stays bounded); at the episode's end the kept
+    frames nearest to evenly spaced times are shown, the first and the last included.
     """
 
     def __init__(self, path, per_episode: int = 6):
@@ -69,25 +70,27 @@ class StripSink:
             raise ValueError(f"per_episode={per_episode!r}; valid: an integer >= 1")
         self.path, self.per_episode = Path(path), per_episode
         self._rows: list[np.ndarray] = []
-        self._kept: list[np.ndarray] = []
+        self._kept: list[tuple[int, np.ndarray]] = []  # (frame index in the episode, frame)
         self._stride, self._seen = 1, 0
         self._last: np.ndarray | None = None
 
     def append(self, frame: np.ndarray) -> None:
         self._last = frame.copy()
         if self._seen % self._stride == 0:
-            self._kept.append(self._last)
-            if len(self._kept) > 2 * self.per_episode:
+            self._kept.append((self._seen, self._last))
+            if len(self._kept) > 4 * self.per_episode:
                 self._kept, self._stride = self._kept[::2], 2 * self._stride
         self._seen += 1
 
     def end_episode(self) -> None:
         if not self._kept:
             return
-        if self._kept[-1] is not self._last:  # the episode's end is always shown
-            self._kept.append(self._last)
-        picks = np.unique(np.linspace(0, len(self._kept) - 1, self.per_episode).round().astype(int))
-        frames = [self._kept[i] for i in picks]
+        if self._kept[-1][0] != self._seen - 1:  # the episode's end is always shown
+            self._kept.append((self._seen - 1, self._last))
+        times = np.array([t for t, _ in self._kept])
+        targets = np.linspace(0, self._seen - 1, self.per_episode)
+        picks = dict.fromkeys(int(np.abs(times - t).argmin()) for t in targets)
+        frames = [self._kept[i][1] for i in picks]
         frames += [np.zeros_like(frames[0])] * (self.per_episode - len(frames))
         self._rows.append(np.concatenate(frames, axis=1))
         self._kept, self._stride, self._seen = [], 1, 0
