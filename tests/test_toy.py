@@ -44,6 +44,36 @@ def test_toy_dimensions_noise_and_input_checks():
     assert env.competence_map().shape == (4, 4)
 
 
+def test_mostly_unfeasible_variant_learns_only_inside_the_learnable_box():
+    env = ToyEnv(nb_dims=3, nb_cubes=4, space_ratio=[2.0, 2.0, 3.0])
+    space = env.task_space()
+    assert list(space.high) == [2.0, 2.0, 3.0] and env.competence.shape == (4, 4, 4)
+    assert env.episode([1.5, 0.0, 0.0]) == 0.0 and env.competence.sum() == 0
+    assert env.episode([0.1, 0.1, 0.1]) == 0.01 and env.episode([1.0, 1.0, 1.0]) == 0.0
+    assert not env.learnable([0.5, 0.5, 1.01]) and env.learnable([0.5, 0.5, 1.0])
+    for bad in (0.5, "3", [2.0, 2.0], True):
+        with pytest.raises(ValueError, match="space_ratio"):
+            ToyEnv(nb_dims=3, space_ratio=bad)
+
+
+def test_value_proxy_tracks_returns_and_reaches_value_teachers():
+    env = ToyEnv(seed=0, space_ratio=2.0)
+    seen = []
+    teacher = make("robust-plr", env.task_space(), seed=0, buffer_size=50)
+    run_teacher(teacher, env, 200, observer=lambda i, t, r: seen.append(r))
+    critic = teacher.value_estimator
+    assert critic([[1.5, 1.5]])[0] == 0.0  # unlearnable: no value
+    assert 0.0 < critic([[0.05, 0.05]])[0] <= env.competence[0, 0] / 100
+    assert len(teacher.bk["scores"]) == 200 and max(teacher.bk["scores"]) > 0
+
+
+def test_run_teacher_maps_tasks_for_the_env():
+    env = ToyEnv(seed=0)
+    teacher = make("random", env.task_space(), seed=0)
+    run_teacher(teacher, env, 50, to_env=lambda t: np.zeros(2))
+    assert env.competence[0, 0] == 50  # every episode played the origin cube
+
+
 def test_run_teacher_scores_and_cpu_accounting():
     env = ToyEnv(seed=0)
     teacher = make("random", env.task_space(), seed=0)
@@ -84,6 +114,15 @@ def test_toy_cli_prints_scores_and_writes_a_gif(tmp_path, capsys):
     assert "episode     300" in out and "% mastered cubes" in out
     frames = imageio.mimread(gif)
     assert len(frames) == 3 and frames[0].ndim == 3
+
+
+@pytest.mark.parametrize("teacher", ["accel", "terrain-levels"])
+def test_toy_cli_unfeasible_space_with_ued_teachers(tmp_path, capsys, teacher):
+    gif = tmp_path / "t.gif"
+    argv = ["toy", "--teacher", teacher, "--episodes", "400", "--space-ratio", "3"]
+    assert main([*argv, "--score-every", "200", "--gif", str(gif), "--gif-every", "200"]) == 0
+    assert "% mastered cubes after 400 episodes" in capsys.readouterr().out
+    assert len(imageio.mimread(gif)) == 2
 
 
 def test_toy_cli_rejects_bad_parameters(capsys):
@@ -154,10 +193,13 @@ def test_bench_script_quick_run(capsys, monkeypatch):
             "random,riac",
             "--preset",
             "teachdeeprl",
+            "--variants",
+            "plain,unfeasible",
         ],
     )
     with pytest.raises(SystemExit) as exit_info:
         runpy.run_path(str(ROOT / "scripts" / "bench_teachers.py"), run_name="__main__")
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
-    assert "| riac | teachdeeprl |" in out and "| random | teachdeeprl |" in out
+    assert "| plain | riac | teachdeeprl |" in out and "| plain | random | teachdeeprl |" in out
+    assert "| unfeasible | riac | teachdeeprl |" in out
