@@ -46,7 +46,7 @@ def status_table(states: list[RunState], rates: dict[str, float] | None = None, 
     shown = [s for s in states if s.status != "pending"] if len(states) > _MAX_ROWS else states
     order = {"running": 0, "crashed": 1, "interrupted": 2, "finished": 3, "pending": 4}
     for s in sorted(shown, key=lambda s: order.get(s.status, 5))[:_MAX_ROWS]:
-        rate = (rates or {}).get(s.name)
+        rate = (rates or {}).get(s.name) or s.mean_rate
         table.add_row(
             s.name,
             s.status,

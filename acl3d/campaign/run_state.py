@@ -27,6 +27,7 @@ class RunState:
     failures: int
     resumable: bool
     last_mastered_pct: float | None
+    mean_rate: float | None = None  # steps/s over the run's training wall time, at its last eval
     error: str | None = None
 
     @property
@@ -44,6 +45,7 @@ def read_state(run_dir: Path, total_steps: int) -> RunState:
             status = {"status": "running"}
     name = status.get("status", "pending") if (run_dir / "config.yaml").exists() else "pending"
     checkpoint = _checkpoint_step(run_dir)
+    last = _last_eval(run_dir / "evals.csv")
     steps = max(_last_step(run_dir / "episodes.csv"), checkpoint or 0)
     if name == "finished":
         steps = int(status.get("steps", steps))
@@ -54,7 +56,8 @@ def read_state(run_dir: Path, total_steps: int) -> RunState:
         total_steps=total_steps,
         failures=failure_count(run_dir),
         resumable=checkpoint is not None,
-        last_mastered_pct=_last_mastered(run_dir / "evals.csv"),
+        last_mastered_pct=last.get("mastered_pct"),
+        mean_rate=last["step"] / last["wall_time_s"] if last.get("wall_time_s") else None,
         error=status.get("error"),
     )
 
@@ -108,15 +111,18 @@ def _last_step(csv_path: Path) -> int:
         return 0
 
 
-def _last_mastered(evals_csv: Path) -> float | None:
+def _last_eval(evals_csv: Path) -> dict[str, float]:
+    """The numeric cells of the newest evaluation row (empty when there is none)."""
     try:
-        header = evals_csv.open().readline().strip().split(",")
+        with evals_csv.open() as f:
+            header = f.readline().strip().split(",")
     except OSError:
-        return None
+        return {}
     line = _tail_line(evals_csv)
-    if not line or "mastered_pct" not in header:
-        return None
-    try:
-        return float(line.split(",")[header.index("mastered_pct")])
-    except (ValueError, IndexError):
-        return None
+    out = {}
+    for name, cell in zip(header, line.split(",") if line else ()):
+        try:
+            out[name] = float(cell)
+        except ValueError:
+            pass
+    return out
