@@ -193,3 +193,36 @@ def test_terrain_levels_climb_the_toy_diagonal():
     )
     run_teacher(tl, env, 3000)
     assert tl.levels.mean() >= 2 and env.score() >= 3.0
+
+
+@pytest.mark.parametrize("name", ["robust-plr", "accel"])
+def test_resume_with_episodes_in_flight_is_exact(name, tmp_path):
+    def run(teacher, n):
+        out = []
+        for _ in range(n):
+            a, b = teacher.sample_task(), teacher.sample_task()
+            teacher.step_update(a, [0.0], float(a[0]), a, False, stream=0)
+            teacher.step_update(b, [0.0], float(b[1]), b, True, stream=1)
+            teacher.episodic_update(b, float(b[1]))
+            teacher.step_update(a, [0.0], 0.5, a, True, stream=0)
+            teacher.episodic_update(a, float(a[0]) + 0.5)
+            out += [a, b]
+        return np.asarray(out)
+
+    def critic(states):
+        return np.asarray(states)[:, 0] * 0.3
+
+    teacher = make(name, SPACE, seed=8, buffer_size=12)
+    teacher.set_value_estimator(critic)
+    run(teacher, 20)
+    pending = teacher.sample_task()
+    teacher.step_update(pending, [0.0], 1.0, pending, False, stream=3)  # mid-episode
+    teacher.save(tmp_path / "t")
+    restored = make(name, SPACE, seed=0, buffer_size=12)
+    restored.set_value_estimator(critic)
+    restored.load(tmp_path / "t")
+    for t in (teacher, restored):
+        t.step_update(pending, [0.0], 1.0, pending, True, stream=3)
+        t.episodic_update(pending, 2.0)
+    np.testing.assert_array_equal(run(restored, 15), run(teacher, 15))
+    assert restored.bk["scores"] == teacher.bk["scores"]
