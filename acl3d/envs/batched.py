@@ -109,6 +109,8 @@ class BatchedEnvs:
         n = self.num_envs
         if seed is None:
             return [None] * n
+        if isinstance(seed, np.ndarray) and seed.ndim == 1:
+            seed = seed.tolist()
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             return [int(seed) + i for i in range(n)]
         if isinstance(seed, Sequence) and len(seed) == n:

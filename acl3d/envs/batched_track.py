@@ -72,6 +72,9 @@ class TrackBatch:
         self._geom1 = [np.zeros(0, dtype=int)] * n
         self._geom2 = [np.zeros(0, dtype=int)] * n
         self._row_offsets = np.arange(n) * e.model.ngeom
+        self._per_env = list(
+            zip(range(n), self._caps, self._ctrl, self.physics_states, self.datas, strict=True)
+        )
         self.touched = np.zeros((n, e.model.ngeom), dtype=bool)
         self._servo = np.zeros((n, self.nb_motors, 2))
         self._targets = np.zeros((n, self.nb_motors))
@@ -111,17 +114,17 @@ class TrackBatch:
 
     def physics(self, lo: int, hi: int) -> None:
         """Envs lo..hi-1: set the servos, step (GIL released), note the contacting geoms."""
-        caps, ctrl, index, copies = self._caps, self._ctrl, self._ctrl_index, self._copies
-        for i in range(lo, hi):
-            caps[i][:] = self._servo[i]
-            ctrl[i][index] = self._targets[i]
-            self.physics_states[i].step()
+        index, copies, servo, targets = self._ctrl_index, self._copies, self._servo, self._targets
+        g1, g2 = self._geom1, self._geom2
+        for i, cap, ctrl, physics, d in self._per_env[lo:hi]:
+            cap[:] = servo[i]
+            ctrl[index] = targets[i]
+            physics.step()
             for rows, views in copies:
                 rows[i] = views[i]
-            d = self.datas[i]
             n = d.ncon
             contact = d.contact
-            self._geom1[i], self._geom2[i] = contact.geom1[:n], contact.geom2[:n]
+            g1[i], g2[i] = contact.geom1[:n], contact.geom2[:n]
 
     def _gather_contacts(self) -> None:
         """Flag the geoms each env's contacts touch (after all physics ran)."""
