@@ -122,7 +122,9 @@ class Comparison:
                 if base is not None and teacher != self.baseline:
                     b = base.final(self.metric)
                     row["baseline_mean"] = float(b.mean())
-                    row["ratio"] = float(values.mean() / b.mean()) if b.mean() else float("nan")
+                    # a ratio says "x times the baseline" only for positive scores (% mastered)
+                    ratio = values.mean() / b.mean() if b.mean() > 0 else float("nan")
+                    row["ratio"] = float(ratio)
                     test = stats.welch(values, b)
                     row.update(t=test.t, p=test.p, significant=test.significant)
                 rows.append(row)

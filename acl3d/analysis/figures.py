@@ -45,7 +45,7 @@ def curves(comp: Comparison, rows: list[dict], path: Path) -> Path:
             ax.plot(x, [p["mean"] for p in pts], color=colors[teacher], label=teacher)
             ax.fill_between(x, [p["low"] for p in pts], [p["high"] for p in pts],
                             color=colors[teacher], alpha=0.2, linewidth=0)  # fmt: skip
-        ax.set_title(task, fontsize=9)
+        ax.set_title(task if len(tasks) > 1 else "mean over runs, 95% bootstrap band", fontsize=9)
         ax.set_xlabel("training steps")
         ax.set_ylabel(_METRIC_NAMES.get(comp.metric, comp.metric))
         ax.grid(alpha=0.3)
