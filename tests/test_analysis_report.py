@@ -3,6 +3,7 @@ the baseline reused across expert-knowledge levels, radar charts, the report."""
 
 import csv
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -114,6 +115,13 @@ def test_cli_and_bad_input(campaign, tmp_path, capsys):
     assert main(["analyze", str(root), "--out", str(out), "--metric", "mean_return",
                  "--reps", "200"]) == 0  # fmt: skip
     assert (out / "curves_mean_return.png").exists()
+    shutil.copytree(root / "runs", tmp_path / "outer" / "inner" / "runs")  # a nested campaign
+    shutil.copy(root / "campaign.yaml", tmp_path / "outer" / "inner")
+    analyze(tmp_path / "outer", out, reps=100)
+    final = _rows(out / "final_scores.csv")
+    assert {r["task"] for r in final} == {
+        f"criterion={c}, expert_knowledge={ek}" for c in CRITERIA for ek in ("low", "high")
+    }
     assert main(["analyze", str(root), "--baseline", "riac", "--out", str(out)]) == 2
     assert "baseline teacher 'riac' has no runs" in capsys.readouterr().err
     assert main(["analyze", str(tmp_path / "empty")]) == 2

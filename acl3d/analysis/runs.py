@@ -1,8 +1,9 @@
 """Reading the runs of a campaign (or any folder of run directories) into tidy evaluations.
 
 A run directory is any folder under the root holding `config.yaml` and `evals.csv`. Its labels
-(teacher, env, body, student, criterion, expert knowledge, variant, seed) come from the
-campaign's `campaign.yaml` when there is one, else from the run's own config. Only files are
+(teacher, env, body, student, expert knowledge, seed) come from the run's own config, completed
+(criterion, variant) by the `campaign.yaml` of the campaign holding it, wherever it sits under
+the root (several campaigns can be analysed together). Only files are
 read: this package imports nothing from training or the environments.
 """
 
@@ -47,12 +48,14 @@ def _read_evals(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return steps, metrics
 
 
-def _manifest_labels(root: Path) -> dict[str, dict]:
-    manifest = root / "campaign.yaml"
-    if not manifest.exists():
-        return {}
-    doc = yaml.safe_load(manifest.read_text()) or {}
-    return {r["name"]: dict(r["labels"]) for r in doc.get("runs", [])}
+def _manifest_labels(root: Path) -> dict[Path, dict]:
+    """Run directory -> labels, from every campaign manifest under `root` (campaigns may nest)."""
+    labels = {}
+    for manifest in root.rglob("campaign.yaml"):
+        doc = yaml.safe_load(manifest.read_text()) or {}
+        for run in doc.get("runs", []):
+            labels[(manifest.parent / "runs" / run["name"]).resolve()] = dict(run["labels"])
+    return labels
 
 
 def _status(path: Path) -> str:
@@ -78,7 +81,7 @@ def load_runs(root) -> list[Run]:
             continue
         saved = (yaml.safe_load(config.read_text()) or {}).get("config", {})
         labels = {k: saved.get(k) for k in CONFIG_LABELS if k in saved}
-        labels.update(from_manifest.get(path.name, {}))
+        labels.update(from_manifest.get(path.resolve(), {}))
         name = str(path.relative_to(root)) if path != root else path.name
         runs.append(Run(name, path, labels, _status(path), steps, metrics))
     if not runs:
