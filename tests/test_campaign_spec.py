@@ -62,6 +62,8 @@ def test_budget_seeds_and_set():
         ("out=/tmp/x", "'out' is set by the campaign"),
         ("seed=3", "'seed' is set by the campaign"),
         ("steps", "expected KEY=VALUE"),
+        ("steps=", "option 'steps' must be of type int, got None"),
+        ("bounds={a: [", "not valid YAML"),
     ],
 )
 def test_bad_set_values_are_rejected(item, message):

@@ -168,16 +168,15 @@ class CampaignSpec:
 
 # ---------------------------------------------------------------------- option checks
 def _field_kinds() -> dict[str, str]:
-    """TrainConfig field -> 'int' | 'float' | 'bool' | 'str' | 'dict', from defaults/annotations."""
+    """TrainConfig field -> 'int' | 'float' | 'bool' | 'str' | 'dict' | 'any', from its
+    annotation, with ' | None' when None is allowed."""
     kinds = {}
     for f in dataclasses.fields(TrainConfig):
         annotation = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
-        for kind in ("bool", "int", "float", "str", "dict"):
-            if annotation.startswith(kind):
-                kinds[f.name] = kind
-                break
-        else:
-            kinds[f.name] = "any"
+        kind = next(
+            (k for k in ("bool", "int", "float", "str", "dict") if annotation.startswith(k)), "any"
+        )
+        kinds[f.name] = kind + (" | None" if "None" in annotation else "")
     return kinds
 
 
@@ -195,7 +194,8 @@ def check_options(options: dict, where: str) -> None:
             raise ValueError(
                 f"{where}: unknown training option {key!r}; valid: {sorted(set(kinds) - set(CAMPAIGN_OWNED))}"
             )
-        if value is None or _has_kind(value, kinds[key]):
+        kind, _, optional = kinds[key].partition(" | ")
+        if (value is None and optional) or (value is not None and _has_kind(value, kind)):
             continue
         raise ValueError(f"{where}: option {key!r} must be of type {kinds[key]}, got {value!r}")
 
@@ -223,8 +223,11 @@ def parse_set(items: list[str] | None) -> dict[str, Any]:
         key = key.strip().replace("-", "_")
         if not sep or not key:
             raise ValueError(f"--set: expected KEY=VALUE, got {item!r}")
-        value = yaml.safe_load(text) if text.strip() else None
-        if kinds.get(key) == "int" and isinstance(value, (str, float)):
+        try:
+            value = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError:
+            raise ValueError(f"--set {key}: value {text!r} is not valid YAML") from None
+        if kinds.get(key, "").startswith("int") and isinstance(value, (str, float)):
             value = _whole_number(value, key)
         out[key] = value
     check_options(out, "--set")
