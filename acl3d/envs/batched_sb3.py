@@ -37,7 +37,6 @@ class SubEnv:
         self.queue: deque[np.ndarray] = deque()
         self.task = None
         self.initial_obs = None
-        self.last_obs = None
         self.start_time = 0.0
 
     # ------------------------------------------------------------------ CurriculumEnv API
@@ -78,11 +77,23 @@ class SubEnv:
         self.task = None if state["task"] is None else np.asarray(state["task"], np.float32)
         self._owner.returns[self._index] = float(state["return"])
         batch.elapsed[self._index] = int(state["length"])
-        self.initial_obs, self.last_obs = state["initial_obs"], state["last_obs"]
+        self.initial_obs = state["initial_obs"]
+        if state["last_obs"] is not None:
+            if self._owner.last_obs is None:
+                owner = self._owner
+                owner.last_obs = np.zeros(
+                    (owner.num_envs, *owner.observation_space.shape), np.float32
+                )
+            self._owner.last_obs[self._index] = state["last_obs"]
 
     @property
     def episode_return(self) -> float:
         return float(self._owner.returns[self._index])
+
+    @property
+    def last_obs(self):
+        last = self._owner.last_obs
+        return None if last is None else last[self._index].copy()
 
     # ------------------------------------------------------------------ the single env
     def __getattr__(self, name):
@@ -108,7 +119,7 @@ class SubEnv:
         obs, info = owner.batch.reset_one(self._index, seed, options)
         self.task = options.get("task", self.env.task_vector)
         owner.returns[self._index] = 0.0
-        self.initial_obs = self.last_obs = obs
+        self.initial_obs = obs
         self.start_time = time.perf_counter()
         return obs, info
 
@@ -148,6 +159,7 @@ class BatchedVecEnv(VecEnv):
     ):
         self.batch = BatchedEnvs(env_id, num_envs, threads, max_episode_steps, **env_kwargs)
         self.returns = np.zeros(self.batch.num_envs)  # of the running episodes
+        self.last_obs = None  # the latest observations, (N, obs)
         self.subenvs = [SubEnv(self, i) for i in range(self.batch.num_envs)]
         super().__init__(
             self.batch.num_envs, self.batch.single_observation_space, self.batch.single_action_space
@@ -162,7 +174,8 @@ class BatchedVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [info for _, info in results]
-        return np.stack([obs for obs, _ in results])
+        self.last_obs = np.stack([obs for obs, _ in results])
+        return self.last_obs.copy()
 
     def step_async(self, actions) -> None:
         self._actions = self.batch.check_actions(actions)
@@ -184,8 +197,7 @@ class BatchedVecEnv(VecEnv):
             self.task_source.episodes_finished(obs, rewards, dones, infos)
         for i in np.flatnonzero(dones):
             obs[i] = subenvs[i].reset()[0]
-        for i, s in enumerate(subenvs):
-            s.last_obs = obs[i]
+        self.last_obs = obs.copy()
         return obs, rewards.astype(np.float32), dones, infos
 
     def close(self) -> None:

@@ -41,14 +41,16 @@ def _sac(preset: str, n_envs: int) -> dict[str, Any]:
             "train_freq": 10,
             "gradient_steps": n_envs,
         }
+    # fast: a learned entropy coefficient and RL Zoo's BipedalWalker SAC rates (lr 7.3e-4,
+    # gamma 0.98, tau 0.02); with the fixed 0.005 of the benchmark it learned to stand, not walk
     return {
         "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "relu"},
-        "learning_rate": 1e-3,
+        "learning_rate": 7.3e-4,
         "batch_size": 256,
         "buffer_size": 300_000,
-        "ent_coef": 0.005,
-        "tau": 0.005,
-        "gamma": 0.99,
+        "ent_coef": "auto",
+        "tau": 0.02,
+        "gamma": 0.98,
         "learning_starts": 1_000,
         "train_freq": 4,
         "gradient_steps": n_envs,
@@ -243,3 +245,8 @@ def reinitialise(model: BaseAlgorithm) -> None:
     if isinstance(model, SAC):
         model._create_aliases()
         model.replay_buffer.reset()
+        if model.ent_coef_optimizer is not None:  # a learned entropy coefficient starts afresh
+            model.log_ent_coef = torch.zeros(1, device=model.device).requires_grad_(True)
+            model.ent_coef_optimizer = torch.optim.Adam(
+                [model.log_ent_coef], lr=model.lr_schedule(1)
+            )
