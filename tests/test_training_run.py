@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from gl_support import require_offscreen_gl
 
 from acl3d.cli import main
 from acl3d.teachers.base import load_state
@@ -152,6 +153,7 @@ def test_evaluate_reproduces_the_runs_last_evaluation(trained_run, tmp_path, cap
 
 
 def test_report_writes_plots_and_video(trained_run, tmp_path):
+    require_offscreen_gl()
     out = tmp_path / "report"
     rc = main(
         ["report", str(trained_run), "--out", str(out), "--video-tasks", "2", "--video-steps", "30"]

@@ -16,7 +16,7 @@ from typing import Any
 from acl3d import validation as check
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
 
-DEFAULT_N_ENVS = 1  # training envs when none are asked for (one place, chosen by the lead)
+DEFAULT_N_ENVS = 16  # training envs when none are asked for: one batched env of 16 fills 2 cores
 TEACHMYAGENT_EVAL_EVERY = 500_000
 MIN_DEFAULT_EVAL_EVERY = 50_000
 TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
