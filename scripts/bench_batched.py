@@ -13,6 +13,7 @@ N workers) is skipped above --max-subproc workers.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import time
 
@@ -20,42 +21,14 @@ import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco 
 
 # isort: split
 import gymnasium as gym
-import mujoco
 import numpy as np
+from bench_env import PhysicsClock  # scripts/ is on sys.path when a script runs
 from stable_baselines3.common.vec_env import SubprocVecEnv
 
 from acl3d.envs.batched import BatchedEnvs
 
 TASK = {"stump_height": 1.0, "obstacle_spacing": 3.0}
 ENV_ID = "acl3d/StumpTracks-v0"
-
-
-class PhysicsClock:
-    """Times every `mujoco.mj_step` call (single-threaded use only)."""
-
-    def __init__(self):
-        self.seconds = 0.0
-        self._mj_step = mujoco.mj_step
-
-    def __enter__(self):
-        def timed(*args, **kwargs):
-            t0 = time.perf_counter()
-            self._mj_step(*args, **kwargs)
-            self.seconds += time.perf_counter() - t0
-
-        mujoco.mj_step = timed
-        return self
-
-    def __exit__(self, *exc):
-        mujoco.mj_step = self._mj_step
-
-
-class _nothing:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False
 
 
 def batched_rate(n: int, threads: int, steps: int, clock: bool = False) -> tuple[float, float]:
@@ -66,7 +39,7 @@ def batched_rate(n: int, threads: int, steps: int, clock: bool = False) -> tuple
     rounds = max(1, steps // n)
     actions = rng.uniform(-1, 1, (rounds, n, batch.action_size))
     elapsed, physics = 0.0, 0.0
-    with PhysicsClock() if clock else _nothing() as timer:
+    with PhysicsClock() if clock else contextlib.nullcontext() as timer:
         for a in actions:
             t0 = time.perf_counter()
             _, _, terminated, truncated, _ = batch.step(a)
