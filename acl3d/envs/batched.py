@@ -20,6 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import gymnasium as gym
 import numpy as np
 
+from acl3d import validation
 from acl3d.envs import env_id as resolve_env_id
 from acl3d.envs.batched_track import TrackBatch
 from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
@@ -30,14 +31,6 @@ MAX_ENVS = 4096
 def default_threads() -> int:
     """One physics thread per core this process may run on."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-
-
-def _check_int(name: str, value, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name}={value!r}; valid: an integer in [{low}, {high}]")
-    if not low <= value <= high:
-        raise ValueError(f"{name}={value!r}; valid: an integer in [{low}, {high}]")
-    return int(value)
 
 
 class BatchedEnvs:
@@ -59,12 +52,16 @@ class BatchedEnvs:
         max_episode_steps: int | None = None,
         **env_kwargs,
     ):
-        num_envs = _check_int("num_envs", num_envs, 1, MAX_ENVS)
-        threads = default_threads() if threads is None else _check_int("threads", threads, 1, 256)
+        num_envs = validation.integer("num_envs", num_envs, 1, MAX_ENVS)
+        threads = (
+            default_threads() if threads is None else validation.integer("threads", threads, 1, 256)
+        )
         self.env_id = resolve_env_id(env_id)
         if max_episode_steps is None:
             max_episode_steps = gym.spec(self.env_id).max_episode_steps
-        self.max_episode_steps = _check_int("max_episode_steps", max_episode_steps, 1, 10**9)
+        self.max_episode_steps = validation.integer(
+            "max_episode_steps", max_episode_steps, 1, 10**9
+        )
         self.envs = [
             gym.make(self.env_id, disable_env_checker=True, **env_kwargs).unwrapped
             for _ in range(num_envs)
