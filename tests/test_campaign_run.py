@@ -106,7 +106,7 @@ def test_interrupted_campaign_continues(tmp_path):
     assert (first / "status.json").stat().st_mtime_ns == finished_at  # not redone
     assert len(_campaign_lines(first)) == 1
     lines = _campaign_lines(second)
-    assert len(lines) == 2 and "resuming from step" in lines[1]
+    assert len(lines) == 2 and "resuming from its step-" in lines[1]
     evals = (second / "evals.csv").read_text().splitlines()
     assert [row.split(",")[0] for row in evals[1:]] == ["1024", "1536"]
 

@@ -33,7 +33,7 @@ def run_attempt(run_dir: str, options: dict, cpus: int) -> dict:
         what = (
             "already finished"
             if state.finished
-            else f"resuming from step {state.steps}"
+            else f"resuming from its step-{state.checkpoint_step} checkpoint"
             if state.resumable
             else "starting afresh"
         )

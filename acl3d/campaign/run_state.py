@@ -25,7 +25,7 @@ class RunState:
     steps: int
     total_steps: int
     failures: int
-    resumable: bool
+    checkpoint_step: int | None  # newest complete checkpoint: where a resume starts
     last_mastered_pct: float | None
     mean_rate: float | None = None  # steps/s over the run's training wall time, at its last eval
     error: str | None = None
@@ -33,6 +33,10 @@ class RunState:
     @property
     def finished(self) -> bool:
         return self.status == "finished"
+
+    @property
+    def resumable(self) -> bool:
+        return self.checkpoint_step is not None
 
 
 def read_state(run_dir: Path, total_steps: int) -> RunState:
@@ -55,7 +59,7 @@ def read_state(run_dir: Path, total_steps: int) -> RunState:
         steps=steps,
         total_steps=total_steps,
         failures=failure_count(run_dir),
-        resumable=checkpoint is not None,
+        checkpoint_step=checkpoint,
         last_mastered_pct=last.get("mastered_pct"),
         mean_rate=last["step"] / last["wall_time_s"] if last.get("wall_time_s") else None,
         error=status.get("error"),
