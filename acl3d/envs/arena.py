@@ -1,5 +1,8 @@
 """The arena: the MJCF track template, sized to the terrain grid, with a body attached at spawn.
 
+An env is composed of a body, an arena and a task (as in dm_control's locomotion): the arena owns
+the terrain generator and everything it writes per episode (`regenerate(task, rng)`), where the
+body starts (`place_body`) and the per-episode world state of exact snapshots.
 Topology (which body, which track kind) is fixed when the model is compiled; shape (terrain
 heights) is written into the compiled model in place each episode, so a new task never recompiles.
 Each env compiles its own model: models hold per-env state (heights, actuator torque caps).
@@ -12,10 +15,19 @@ import numpy as np
 
 from acl3d.assets import mjcf_path
 from acl3d.bodies.base import PREFIX, Body, BoundBody
-from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT, TERRAIN_STEP, TrackGrid, start_pad_for
+from acl3d.envs import env_state
+from acl3d.terrain.tracks import (
+    MAX_TERRAIN_HEIGHT,
+    TERRAIN_STEP,
+    TrackGenerator,
+    TrackGrid,
+    start_pad_for,
+)
 
 TRACK_HALF_WIDTH = 2.0  # metres: walls at +-2 m keep full-3D bodies on the track
 HFIELD_BASE_DEPTH = 1.0
+CONTROL_DT = 1 / 50  # 50 Hz control, as the original
+INIT_PUSH = 5.0  # the original pushes the hull once with a horizontal force U(-5, 5)
 
 
 def resize_hfield(hfield: mujoco.MjsHField, ncol: int, size) -> None:
@@ -94,3 +106,42 @@ class Arena:
 
     def ground_height(self, x: float) -> float:
         return float(np.interp(x, self.grid.x, self.heights))
+
+    def place_body(self, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        """Spawn at the start pad's middle; the push is drawn for every body (same RNG stream)."""
+        self.bound.place(data, self.start_x, self.body.spawn_height)
+        push = rng.uniform(-INIT_PUSH, INIT_PUSH)
+        if not self.body.initial_push:  # the original never pushes the fish
+            return
+        # the one-off horizontal force of the original, as the velocity change it gives in one step
+        data.qvel[self.bound.root_dof] = push * CONTROL_DT / self.bound.total_mass
+
+    def settle(self, data: mujoco.MjData, control_step) -> None:
+        """Steps after the reset's idle step, before the first observation (none on a track)."""
+
+    def before_step(self, data: mujoco.MjData, action: np.ndarray) -> None:
+        """The arena's forces and constraints for the coming step (none on a track)."""
+
+    # ------------------------------------------------------------------ exact snapshots
+    def episode_state(self) -> dict:
+        """The per-episode world: the terrain profile."""
+        return {"terrain/heights": self.heights.copy()}
+
+    def check_episode_state(self, state) -> dict:
+        env_state.check_keys(state, ("terrain/heights",))
+        return {"heights": env_state.array(state, "terrain/heights", self.heights)}
+
+    def set_episode_state(self, checked: dict, data: mujoco.MjData) -> None:
+        self.write_heights(checked["heights"])
+
+
+class TrackArena(Arena):
+    """Stump and Hexagon Tracks: one heightfield written from a `TrackGenerator` profile."""
+
+    def __init__(self, body: Body, generator: TrackGenerator):
+        self.generator = generator
+        super().__init__(body, generator.grid)
+
+    def regenerate(self, task: dict, rng: np.random.Generator) -> None:
+        """This episode's terrain for `task`, drawn from `rng`, written in place."""
+        self.write_heights(self.generator.profile(task, rng, self.start_pad))

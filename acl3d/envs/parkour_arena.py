@@ -3,7 +3,9 @@
 The ground and the ceiling are two heightfields (the ceiling one turned upside down) whose
 columns sit exactly on the terrain points (one every TS); water and creepers are geoms in their
 own static bodies, moved and resized in the compiled model by `write_terrain`, so a new task
-never recompiles.
+never recompiles. The arena also owns the water's forces and, for climbers, the grasp welds
+(`Climbing`): climbers start hanging from the start-pad ceiling (placed with their highest hand
+at it, then 5 + 1 steps with the grasp actions at +1, as the original).
 """
 
 from __future__ import annotations
@@ -11,9 +13,12 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from acl3d import validation
 from acl3d.bodies.base import Body
+from acl3d.envs import env_state
 from acl3d.envs.arena import Arena, resize_hfield
-from acl3d.envs.climbing import add_grasp_welds
+from acl3d.envs.climbing import Climbing, add_grasp_welds
+from acl3d.envs.water import PUSH_CLIP, Water
 from acl3d.terrain.parkour import ParkourGenerator, ParkourTerrain
 from acl3d.terrain.tracks import TERRAIN_STEP, TrackGrid
 
@@ -27,12 +32,21 @@ SEGMENT_MASS = 5.0 * 0.25 * 1.0  # density 5 on a 0.25 x 1 m piece, as the origi
 SEGMENT_RANGE = 0.4 * np.pi  # joint limits between pieces
 WATER_HALF_HEIGHT = 100.0
 WATER_HALF_WIDTH = 1.98  # just inside the terrain faces (y = +-2), so they do not z-fight
+HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
+TERRAIN_KEYS = ("terrain/ground", "terrain/ceiling", "terrain/creepers", "terrain/water_z")
+GRASP = ("ready", "holding", "touching")  # Climbing's per-hand flags
 
 
 class ParkourArena(Arena):
     """The Parkour template sized to the terrain grid, with a creeper pool and grasp welds."""
 
-    def __init__(self, body: Body, generator: ParkourGenerator, movable_creepers: bool = False):
+    def __init__(
+        self,
+        body: Body,
+        generator: ParkourGenerator,
+        movable_creepers: bool = False,
+        water_clip: float = PUSH_CLIP,
+    ):
         self.generator = generator
         self.segments = MOVABLE_SEGMENTS if movable_creepers else 1
         n = generator.nb_points
@@ -55,6 +69,10 @@ class ParkourArena(Arena):
         self.ceiling_heights = np.full(grid.ncol, CEILING_RANGE[1])
         self.nb_creeper_geoms = 0
         self.terrain: ParkourTerrain | None = None
+        self.water = Water(m, self.bound.body_geom_ids, push_clip=water_clip)
+        sensors = body.grasp_sensors
+        self.climbing = Climbing(m, sensors, self.creeper_geoms) if sensors else None
+        self._nb_grasp = len(sensors)
 
     @property
     def hfield_ids(self) -> tuple[int, ...]:
@@ -159,3 +177,101 @@ class ParkourArena(Arena):
         m.body_pos[bodies[n:, 0]] = (0.0, 0.0, PARKED_Z)
         m.geom_rgba[geoms[n:].ravel(), 3] = 0.0  # invisible to renderers and rays
         self.nb_creeper_geoms = used.size
+
+    # ------------------------------------------------------------------ episodes
+    def regenerate(self, task: dict, rng: np.random.Generator) -> None:
+        """This episode's terrain for `task`, drawn from `rng`, written in place."""
+        self.use_terrain(self.generator.generate(task, rng))
+
+    def use_terrain(self, terrain: ParkourTerrain) -> None:
+        self.write_terrain(terrain)
+        self.water.level = terrain.water_z
+
+    def place_body(self, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        """Walkers as on a track; the fish 1 m higher (in its spawn height) with no push and no
+        push drawn (as recorded); climbers lifted to hang from the start-pad ceiling."""
+        if self.body.initial_push:
+            super().place_body(data, rng)
+        else:
+            self.bound.place(data, self.start_x, self.body.spawn_height)
+        self.water.clear(data)
+        if self.climbing:
+            self.climbing.reset(data, self.terrain, self.nb_creeper_geoms)
+            self._lift_to_ceiling(data)
+
+    def _lift_to_ceiling(self, data: mujoco.MjData) -> None:
+        """Lift the climber so that its highest hand touches the start-pad ceiling."""
+        mujoco.mj_kinematics(self.model, data)
+        c = self.climbing
+        tops = data.geom_xpos[c.geom_ids, 2] + c.radius
+        lift = self.terrain.ceiling[0] - tops.max()
+        data.qpos[self.bound.root_qpos + (1 if self.body.planar else 2)] += lift
+
+    def settle(self, data: mujoco.MjData, control_step) -> None:
+        """Climbers grasp the ceiling: HANG_STEPS control steps with the grasp actions at +1."""
+        if not self.climbing:
+            return
+        grasp = np.zeros(self.body.action_size)
+        grasp[-self._nb_grasp :] = 1.0
+        for _ in range(HANG_STEPS):
+            control_step(grasp)
+            self.climbing.after_step(data)
+
+    def before_step(self, data: mujoco.MjData, action: np.ndarray) -> None:
+        """Grasps are released first; water forces for this step."""
+        if self.climbing:
+            self.climbing.before_step(data, action[-self._nb_grasp :])
+        self.water.apply(data)
+
+    # ------------------------------------------------------------------ exact snapshots
+    def episode_state(self) -> dict:
+        """Terrain (ground, ceiling, water level, creepers), water and grasp state."""
+        t = self.terrain
+        state = {
+            "terrain/ground": t.ground.copy(),
+            "terrain/ceiling": t.ceiling.copy(),
+            "terrain/creepers": t.creepers.copy(),
+            "terrain/water_z": float(t.water_z),
+            "water/wet": self.water.wet,
+        }
+        for key in GRASP if self.climbing else ():
+            state[f"climbing/{key}"] = getattr(self.climbing, key).copy()
+        return state
+
+    def check_episode_state(self, state) -> dict:
+        grasp = [f"climbing/{key}" for key in GRASP] if self.climbing else []
+        env_state.check_keys(state, (*TERRAIN_KEYS, "water/wet", *grasp))
+        creepers = np.asarray(state["terrain/creepers"])
+        pool = len(self.creeper_bodies) // self.segments
+        if (
+            creepers.dtype.kind != "f"
+            or creepers.ndim != 2
+            or creepers.shape[1] != 4
+            or len(creepers) > pool
+            or not np.all(np.isfinite(creepers))
+        ):
+            raise validation.fail(
+                "state['terrain/creepers']", creepers, f"a finite (k <= {pool}, 4) float array"
+            )
+        profile = np.zeros(self.generator.nb_points)
+        checked = {
+            "ground": env_state.array(state, "terrain/ground", profile),
+            "ceiling": env_state.array(state, "terrain/ceiling", profile),
+            "creepers": creepers.astype(np.float64),
+            "water_z": env_state.scalar(state, "terrain/water_z", "real"),
+            "wet": env_state.scalar(state, "water/wet", "flag"),
+        }
+        for key in GRASP if self.climbing else ():
+            checked[key] = env_state.array(state, f"climbing/{key}", getattr(self.climbing, key))
+        return checked
+
+    def set_episode_state(self, c: dict, data: mujoco.MjData) -> None:
+        g = self.generator
+        self.use_terrain(
+            ParkourTerrain(g.x, c["ground"], c["ceiling"], c["water_z"], c["creepers"])
+        )
+        self.water.wet = c["wet"]
+        if self.climbing:  # welds: eq_active comes back with the physics
+            self.climbing.reset(data, self.terrain, self.nb_creeper_geoms)
+            for key in GRASP:
+                setattr(self.climbing, key, c[key])

@@ -1,8 +1,9 @@
 """TeachMyAgent's Parkour in 3D: CPPN ground and ceiling, water, creepers, climbing; any body.
 
-`gymnasium.make("acl3d/Parkour-v0", body=...)`. The arena (`acl3d.envs.parkour_arena`: ground
-and ceiling heightfields, water, creepers) is rewritten in place at every reset, so a new task
-never recompiles.
+`gymnasium.make("acl3d/Parkour-v0", body=...)`. The env is the track core (`TrackEnv`)
+composed with Parkour's arena (`acl3d.envs.parkour_arena`: ground and ceiling heightfields,
+water, creepers, grasp welds; rewritten in place at every reset, so a new task never recompiles)
+and Parkour's task (`acl3d.envs.parkour_task`: survival rules, surface-typed lidars).
 
 Walkers start on the start pad, the fish 1 m higher with no push, climbers hang from the
 start-pad ceiling (placed with their highest hand at it, then 5 + 1 steps with the grasp actions
@@ -14,13 +15,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import mujoco
-import numpy as np
-
 from acl3d import validation
 from acl3d.bodies.base import Body
 from acl3d.curriculum_profile import CurriculumProfile
-from acl3d.envs import env_state
 from acl3d.envs.climbing import Climbing
 from acl3d.envs.lidar import LIDAR_TYPES
 from acl3d.envs.parkour_arena import ParkourArena
@@ -37,10 +34,6 @@ from acl3d.terrain.parkour import (
     parkour_task_space,
 )
 from acl3d.terrain.tracks import start_pad_for
-
-HANG_STEPS = 6  # 5 + 1 steps with the grasp actions at +1 at reset
-_SURVIVAL = ("steps_under_water", "steps_out_of_water", "dead", "under_water")  # ParkourTask's
-_GRASP = ("ready", "holding", "touching")  # Climbing's per-hand flags
 
 
 class ParkourEnv(TrackEnv):
@@ -77,183 +70,75 @@ class ParkourEnv(TrackEnv):
         camera: str | None = None,
         quality: str = "fast",
     ):
+        composition = ParkourComposition(
+            input_space, lidars_type, end_on_death, water_clip, movable_creepers
+        )
+        self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
+        self._compose(
+            composition,
+            self._make_body(body, planar, body_options),
+            frame_skip,
+            render_mode,
+            dict(width=width, height=height, camera=camera, quality=quality),
+        )
+        self.input_space = input_space
+        self.end_on_death = composition.end_on_death
+        self.movable_creepers = composition.movable_creepers
+
+    @property
+    def terrain(self) -> ParkourTerrain | None:
+        """This episode's terrain (ground, ceiling, water level, creepers); None before a reset."""
+        return self.arena.terrain
+
+    @property
+    def water(self) -> Water:
+        return self.arena.water
+
+    @property
+    def climbing(self) -> Climbing | None:
+        """The climbers' grasp state (None for other bodies)."""
+        return self.arena.climbing
+
+
+class ParkourComposition:
+    """Parkour's arena (ground, ceiling, water, creepers) and task (survival, typed lidars)."""
+
+    track = "stump"  # what ParkourEnv's saved-state signature has always said
+
+    def __init__(self, input_space, lidars_type, end_on_death, water_clip, movable_creepers):
         validation.choice("input_space", input_space, list(INPUT_SPACES))
         validation.choice("lidars_type", lidars_type, [None, *LIDAR_TYPES])
         self.input_space = input_space
         self.end_on_death = validation.flag("end_on_death", end_on_death)
-        self._lidars_type = lidars_type
-        self._water_clip = validation.real("water_clip", water_clip, 0.0)
+        self.lidars_type = lidars_type
+        self.water_clip = validation.real("water_clip", water_clip, 0.0)
         self.movable_creepers = validation.flag("movable_creepers", movable_creepers)
-        super().__init__(
-            track="stump",
-            body=body,
-            planar=planar,
-            body_options=body_options,
-            frame_skip=frame_skip,
-            render_mode=render_mode,
-            width=width,
-            height=height,
-            camera=camera,
-            quality=quality,
-        )
-        self._zero_action = np.zeros(self.body.action_size)
-        self._nb_grasp = len(self.body.grasp_sensors)
-        self.terrain: ParkourTerrain | None = None
+        self.task_space: TaskSpace = parkour_task_space(input_space)
+        self.profile: CurriculumProfile = PARKOUR
+        self._lidar = ""
 
-    # ------------------------------------------------------------------ construction hooks
-    def _make_task_space(self, task_parameters) -> TaskSpace:
-        return parkour_task_space(self.input_space)
-
-    @property
-    def curriculum_profile(self) -> CurriculumProfile:
-        """What a curriculum needs to know about Parkour (reward bounds, named test sets)."""
-        return PARKOUR
-
-    def _make_generator(self) -> ParkourGenerator:
-        return ParkourGenerator(start_pad_for(self.body.length))
-
-    def _check_buildable(self, task: dict) -> None:
+    def check_buildable(self, task: dict) -> None:
         check_buildable(task)
 
-    def _build_arena(self) -> ParkourArena:
-        return ParkourArena(self.body, self.generator, self.movable_creepers)
+    def build_arena(self, body: Body) -> ParkourArena:
+        generator = ParkourGenerator(start_pad_for(body.length))
+        return ParkourArena(body, generator, self.movable_creepers, self.water_clip)
 
-    def _make_task(self) -> ParkourTask:
-        arena, model = self.arena, self.model
-        self.water = Water(model, self.bound.body_geom_ids, push_clip=self._water_clip)
-        self.climbing = (
-            Climbing(model, self.body.grasp_sensors, arena.creeper_geoms)
-            if self.body.grasp_sensors
-            else None
-        )
-        kind = self._lidars_type or DEFAULT_LIDARS[self.body.kind]
-        lidar = ParkourLidar(kind, arena)
+    def build_task(self, arena: ParkourArena) -> ParkourTask:
+        self._lidar = self.lidars_type or DEFAULT_LIDARS[arena.body.kind]
         return ParkourTask(
-            self.bound,
-            lidar,
-            self.water,
-            self.climbing,
+            arena.bound,
+            ParkourLidar(self._lidar, arena),
+            arena.water,
+            arena.climbing,
             arena.ceiling_geom,
-            self.generator.end_x,
+            arena.generator.end_x,
             self.end_on_death,
         )
 
-    # ------------------------------------------------------------------ gymnasium API
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed, options=options)
-        if self.climbing:
-            grasp = np.zeros(self.body.action_size)
-            grasp[-self._nb_grasp :] = 1.0
-            for _ in range(HANG_STEPS):
-                self._apply_action(grasp)
-                self.physics.step()
-                self.climbing.after_step(self.data)
-            obs = self.task.reset(self.model, self.data)
-        return obs, info
-
-    # ------------------------------------------------------------------ internals
-    def _new_terrain(self) -> None:
-        self._use_terrain(self.generator.generate(self.get_task(), self.np_random))
-        self.task.reset_survival()
-
-    def _use_terrain(self, terrain: ParkourTerrain) -> None:
-        self.terrain = terrain
-        self.arena.write_terrain(terrain)
-        self.water.level = terrain.water_z
-        self.task.lidar.water_level = terrain.water_z
-
-    # ------------------------------------------------------------------ exact snapshots
-    def _signature(self) -> str:
+    def signature(self) -> str:
         return (
-            f"{super()._signature()} input_space={self.input_space}, "
-            f"lidars={self.task.lidar.kind}, end_on_death={self.end_on_death}, "
-            f"water_clip={self._water_clip!r}, movable_creepers={self.movable_creepers}"
+            f" input_space={self.input_space}, lidars={self._lidar}, "
+            f"end_on_death={self.end_on_death}, water_clip={self.water_clip!r}, "
+            f"movable_creepers={self.movable_creepers}"
         )
-
-    def _episode_state(self) -> dict:
-        """Terrain (ground, ceiling, water level, creepers), water, survival and grasp state."""
-        t, task = self.terrain, self.task
-        state = {
-            "terrain/ground": t.ground.copy(),
-            "terrain/ceiling": t.ceiling.copy(),
-            "terrain/creepers": t.creepers.copy(),
-            "terrain/water_z": float(t.water_z),
-            "water/wet": self.water.wet,
-            **{f"survival/{key}": getattr(task, key) for key in _SURVIVAL},
-        }
-        if self.climbing:
-            for key in _GRASP:
-                state[f"climbing/{key}"] = getattr(self.climbing, key).copy()
-        return state
-
-    def _check_episode_state(self, state) -> dict:
-        grasp = [f"climbing/{key}" for key in _GRASP] if self.climbing else []
-        terrain = ("terrain/ground", "terrain/ceiling", "terrain/creepers", "terrain/water_z")
-        survival = [f"survival/{key}" for key in _SURVIVAL]
-        env_state.check_keys(state, (*terrain, "water/wet", *survival, *grasp))
-        creepers = np.asarray(state["terrain/creepers"])
-        pool = len(self.arena.creeper_bodies) // self.arena.segments
-        if (
-            creepers.dtype.kind != "f"
-            or creepers.ndim != 2
-            or creepers.shape[1] != 4
-            or len(creepers) > pool
-            or not np.all(np.isfinite(creepers))
-        ):
-            raise validation.fail(
-                "state['terrain/creepers']", creepers, f"a finite (k <= {pool}, 4) float array"
-            )
-        profile = np.zeros(self.generator.nb_points)
-        checked = {
-            "ground": env_state.array(state, "terrain/ground", profile),
-            "ceiling": env_state.array(state, "terrain/ceiling", profile),
-            "creepers": creepers.astype(np.float64),
-            "water_z": env_state.scalar(state, "terrain/water_z", "real"),
-            "wet": env_state.scalar(state, "water/wet", "flag"),
-        }
-        for key in _SURVIVAL:
-            kind = "integer" if key.startswith("steps") else "flag"
-            checked[key] = env_state.scalar(state, f"survival/{key}", kind, 0)
-        for key in _GRASP if self.climbing else ():
-            checked[key] = env_state.array(state, f"climbing/{key}", getattr(self.climbing, key))
-        return checked
-
-    def _set_episode_state(self, c: dict) -> None:
-        terrain = ParkourTerrain(
-            self.generator.x, c["ground"], c["ceiling"], c["water_z"], c["creepers"]
-        )
-        self._use_terrain(terrain)
-        self.water.wet = c["wet"]
-        for key in _SURVIVAL:
-            setattr(self.task, key, c[key])
-        if self.climbing:  # welds: eq_active comes back with the physics
-            self.climbing.reset(self.data, terrain, self.arena.nb_creeper_geoms)
-            for key in _GRASP:
-                setattr(self.climbing, key, c[key])
-
-    def _place_body(self) -> None:
-        if self.body.initial_push:
-            super()._place_body()
-        else:  # the fish: no push (its spawn height already includes the original's +1 m)
-            self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)
-        self.water.clear(self.data)
-        if self.climbing:
-            self.climbing.reset(self.data, self.terrain, self.arena.nb_creeper_geoms)
-            self._hang_from_ceiling()
-
-    def _hang_from_ceiling(self) -> None:
-        """Lift the climber so that its highest hand touches the start-pad ceiling."""
-        mujoco.mj_kinematics(self.model, self.data)
-        c = self.climbing
-        tops = self.data.geom_xpos[c.geom_ids, 2] + c.radius
-        lift = self.terrain.ceiling[0] - tops.max()
-        z_index = self.bound.root_qpos + (1 if self.body.planar else 2)
-        self.data.qpos[z_index] += lift
-
-    def _apply_action(self, action: np.ndarray) -> None:
-        """Dead bodies play zeros; grasps are released first; water forces for this step."""
-        played = self._zero_action if self.task.dead else action
-        if self.climbing:
-            self.climbing.before_step(self.data, played[-self._nb_grasp :])
-        self.water.apply(self.data)
-        super()._apply_action(played)

@@ -21,12 +21,14 @@ import mujoco
 import numpy as np
 
 from acl3d.bodies.base import BoundBody
+from acl3d.envs import env_state
 from acl3d.envs.climbing import Climbing
 from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
 from acl3d.envs.track_task import FAIL_REWARD, TrackTask
 from acl3d.envs.water import Water
 
 SURVIVAL_STEPS = 600
+SURVIVAL_KEYS = ("steps_under_water", "steps_out_of_water", "dead", "under_water")
 WATER_FLAG, CREEPER_FLAG = -1.0, 1.0
 PARKOUR_CRITICAL_WALKERS = ("profile_chimpanzee",)  # the chimpanzee's head is always critical
 DEFAULT_LIDARS = {"walker": "down", "amphibian": "down", "climber": "up", "swimmer": "full"}
@@ -58,7 +60,6 @@ class ParkourLidar:
         self._grid_x = arena.grid.x
         with np.errstate(divide="ignore"):  # distance per metre of height to the water plane
             self._inv_down = np.where(self._dz < 0.0, -1.0 / self._dz, np.inf)
-        self.water_level = -np.inf
         self.flags = np.zeros(self.nb_rays)
 
     def read(self, model, data, origin) -> np.ndarray:
@@ -82,7 +83,7 @@ class ParkourLidar:
             on_creeper = creepers < best
             best[on_creeper] = creepers[on_creeper]
             flags[on_creeper] = CREEPER_FLAG
-        height = z0 - self.water_level
+        height = z0 - arena.water.level
         if height > 0.0:  # rays from under water do not see its surface
             water = height * self._inv_down  # inf for rays that do not go down
             on_water = water < best
@@ -159,6 +160,7 @@ class ParkourTask(TrackTask):
         self.steps_out_of_water = 0
         self.dead = False
         self.under_water = False
+        self._zero_action = np.zeros(body.action_size)
 
     def extra_obs_size(self) -> int:
         return 2 + self.lidar.nb_rays  # under_water and dead flags, surface flags
@@ -167,9 +169,29 @@ class ParkourTask(TrackTask):
         return self.climbing.state() if self.climbing else self._grasp
 
     # ------------------------------------------------------------------ survival
-    def reset_survival(self) -> None:
+    def begin_episode(self) -> None:
         self.steps_under_water = self.steps_out_of_water = 0
         self.dead = False
+
+    def played(self, action: np.ndarray) -> np.ndarray:
+        """Dead bodies play zeros."""
+        return self._zero_action if self.dead else action
+
+    def episode_state(self) -> dict:
+        return {f"survival/{key}": getattr(self, key) for key in SURVIVAL_KEYS}
+
+    def check_episode_state(self, state) -> dict:
+        env_state.check_keys(state, [f"survival/{key}" for key in SURVIVAL_KEYS])
+        return {
+            key: env_state.scalar(
+                state, f"survival/{key}", "integer" if key.startswith("steps") else "flag", 0
+            )
+            for key in SURVIVAL_KEYS
+        }
+
+    def set_episode_state(self, checked: dict) -> None:
+        for key in SURVIVAL_KEYS:
+            setattr(self, key, checked[key])
 
     def _update_survival(self, data: mujoco.MjData) -> bool:
         """Count consecutive steps in/out of water; return True if the body died this step."""
@@ -204,7 +226,7 @@ class ParkourTask(TrackTask):
         ).astype(np.float32)
 
     def reset(self, model, data) -> np.ndarray:
-        self.reset_survival()
+        self.begin_episode()
         self.under_water = bool(data.xpos[self.bound.root_id, 2] <= self.water.level)
         return super().reset(model, data)
 

@@ -1,7 +1,9 @@
 """Stump Tracks and Hexagon Tracks as Gymnasium environments (one class, two track kinds).
 
-Composition, as in dm_control locomotion: a body (acl3d.bodies), a terrain generator
-(acl3d.terrain, pure numpy) and a task (TrackTask), bound together in one compiled model.
+Composition, as in dm_control locomotion: a body (acl3d.bodies), an arena (acl3d.envs.arena: the
+terrain generator and what it writes) and a task (TrackTask), bound together in one compiled
+model. A composition (`acl3d.envs.track_composition`; Parkour's in acl3d.envs.parkour_env) builds
+the arena and the task for a body; `TrackEnv` is the core that binds and steps them.
 The task (track parameters) can change at every reset without recompiling: the new profile is
 written into the heightfield in place. Per-episode randomness comes from `self.np_random`.
 """
@@ -9,7 +11,6 @@ written into the heightfield in place. Per-episode randomness comes from `self.n
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import NamedTuple
 
 import gymnasium as gym
 import mujoco
@@ -19,33 +20,13 @@ from acl3d import validation
 from acl3d.bodies import Body, make_body
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs import env_state
-from acl3d.envs.arena import Arena
-from acl3d.envs.lidar import ProfileLidar
-from acl3d.envs.profiles import HEXAGON_TRACKS, STUMP_TRACKS
-from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
+from acl3d.envs.arena import CONTROL_DT
+from acl3d.envs.track_composition import TRACKS, TrackComposition
+from acl3d.envs.track_task import SUCCESS_RETURN
 from acl3d.rendering import TrackRenderer
 from acl3d.task_space import TaskSpace
-from acl3d.terrain.tracks import (
-    TrackGenerator,
-    TrackGrid,
-    check_buildable,
-    track_task_space,
-)
 from acl3d.viewer import HumanViewer, check_display
 
-
-class TrackKind(NamedTuple):
-    """One kind of track: its default task parameters and its curriculum facts."""
-
-    parameters: tuple[str, ...]
-    profile: CurriculumProfile
-
-
-TRACKS = {
-    "stump": TrackKind(("stump_height", "obstacle_spacing"), STUMP_TRACKS),
-    "hexagon": TrackKind(("poly_shape",), HEXAGON_TRACKS),
-}
-CONTROL_DT = 1 / 50  # 50 Hz control, as the original
 MAX_IMAGE_SIZE = 8192  # pixels, per side of a rendered frame
 _STATE_KEYS = (  # get_state()'s own keys (the RNG, physics and terrain parts check theirs)
     "signature",
@@ -56,7 +37,6 @@ _STATE_KEYS = (  # get_state()'s own keys (the RNG, physics and terrain parts ch
     "task/prev_shaping",
     "task/critical_contact",
 )
-INIT_PUSH = 5.0  # the original pushes the hull once with a horizontal force U(-5, 5)
 
 
 class TrackEnv(gym.Env):
@@ -93,6 +73,30 @@ class TrackEnv(gym.Env):
         quality: str = "fast",
     ):
         validation.choice("track", track, list(TRACKS))
+        self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
+        if task_parameters is not None and (
+            isinstance(task_parameters, str)
+            or not isinstance(task_parameters, (list, tuple))
+            or not task_parameters
+            or not all(isinstance(n, str) for n in task_parameters)
+        ):
+            raise validation.fail(
+                "task_parameters",
+                task_parameters,
+                "None or a non-empty list of track parameter names",
+            )
+        body = self._make_body(body, planar, body_options)
+        self._compose(
+            TrackComposition(track, task_parameters),
+            body,
+            frame_skip,
+            render_mode,
+            dict(width=width, height=height, camera=camera, quality=quality),
+        )
+
+    # ------------------------------------------------------------------ composition
+    def _check_options(self, render_mode, width, height, camera, quality, frame_skip, body_options):
+        """The arguments every env takes, checked before anything is built."""
         validation.choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
         if render_mode == "human":
             check_display()  # a headless machine fails here, not at the first render
@@ -105,31 +109,28 @@ class TrackEnv(gym.Env):
             validation.integer("frame_skip", frame_skip, 1, 20)
         if body_options is not None and not isinstance(body_options, Mapping):
             raise validation.fail("body_options", body_options, "None or a dict of body options")
-        if task_parameters is not None and (
-            isinstance(task_parameters, str)
-            or not isinstance(task_parameters, (list, tuple))
-            or not task_parameters
-            or not all(isinstance(n, str) for n in task_parameters)
-        ):
-            raise validation.fail(
-                "task_parameters",
-                task_parameters,
-                "None or a non-empty list of track parameter names",
-            )
-        self.track = track
+
+    @staticmethod
+    def _make_body(body, planar, body_options) -> Body:
         if isinstance(body, Body):
-            self.body = body
-        elif isinstance(body, str):
-            self.body = make_body(body, planar=planar, **dict(body_options or {}))
-        else:
-            raise validation.fail("body", body, "a body name or an acl3d.bodies.Body")
+            return body
+        if isinstance(body, str):
+            return make_body(body, planar=planar, **dict(body_options or {}))
+        raise validation.fail("body", body, "a body name or an acl3d.bodies.Body")
+
+    def _compose(self, composition, body: Body, frame_skip, render_mode, render_args) -> None:
+        """Bind body x arena x task (from `composition`) into one compiled model."""
+        self.body = body
+        self.composition = composition
+        self.track = composition.track
         frame_skip = self.body.frame_skip if frame_skip is None else int(frame_skip)
-        self.task_space: TaskSpace = self._make_task_space(task_parameters)
-        self.generator = self._make_generator()
+        self.task_space: TaskSpace = composition.task_space
         self.frame_skip = frame_skip
-        self.arena = self._build_arena()
+        self.arena = composition.build_arena(body)
+        self.generator = self.arena.generator
         self.model, self.bound = self.arena.model, self.arena.bound
         self.model.opt.timestep = CONTROL_DT / frame_skip
+        camera = render_args["camera"]
         if (
             camera is not None
             and mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0
@@ -139,7 +140,7 @@ class TrackEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self.physics = env_state.PhysicsState(self.model, self.data, frame_skip)
         self._warning_counts = self.data.warning.number  # a live view
-        self.task = self._make_task()
+        self.task = composition.build_task(self.arena)
 
         self.action_space = gym.spaces.Box(
             -1.0, 1.0, shape=(self.body.action_size,), dtype=np.float32
@@ -156,34 +157,14 @@ class TrackEnv(gym.Env):
         self._warnings = 0
 
         self.render_mode = render_mode
-        self._render_args = dict(
-            width=width, height=height, camera=camera or self.arena.camera, quality=quality
-        )
+        self._render_args = {**render_args, "camera": camera or self.arena.camera}
         self._renderer: TrackRenderer | None = None
         self._viewer: HumanViewer | None = None
-
-    # ------------------------------------------------------------------ construction hooks
-    def _make_task_space(self, task_parameters) -> TaskSpace:
-        names = TRACKS[self.track].parameters if task_parameters is None else task_parameters
-        return track_task_space(names)
 
     @property
     def curriculum_profile(self) -> CurriculumProfile:
         """What a curriculum needs to know about this track (reward bounds, priors, test sets)."""
-        return TRACKS[self.track].profile
-
-    def _make_generator(self):
-        return TrackGenerator(TrackGrid())
-
-    def _check_buildable(self, task: dict) -> None:
-        """Raise ValueError if the generator cannot build `task` (names the parameter and range)."""
-        check_buildable(task)
-
-    def _build_arena(self) -> Arena:
-        return Arena(self.body, self.generator.grid)
-
-    def _make_task(self) -> TrackTask:
-        return TrackTask(self.bound, ProfileLidar(self.arena, "down"))
+        return self.composition.profile
 
     # ------------------------------------------------------------------ tasks
     def set_task(self, task) -> None:
@@ -196,7 +177,7 @@ class TrackEnv(gym.Env):
             vector = self.task_space.to_vector(task)
         else:
             vector = self.task_space.validate_vector(task)
-        self._check_buildable(self.task_space.to_dict(vector))
+        self.composition.check_buildable(self.task_space.to_dict(vector))
         return vector
 
     def set_environment(self, **params) -> None:
@@ -288,18 +269,22 @@ class TrackEnv(gym.Env):
             f"{type(self).__name__}(track={self.track}, body={self.body.describe()}, "
             f"frame_skip={self.frame_skip}, task={list(self.task_space.names)}, "
             f"nq={m.nq}, nv={m.nv}, nu={m.nu}, ngeom={m.ngeom})"
+            f"{self.composition.signature()}"
         )
 
     def _episode_state(self) -> dict:
-        """The per-episode world: the terrain profile (subclasses add theirs)."""
-        return {"terrain/heights": self.arena.heights.copy()}
+        """The per-episode world (the arena's) and the task's rule state."""
+        return {**self.arena.episode_state(), **self.task.episode_state()}
 
     def _check_episode_state(self, state) -> dict:
-        env_state.check_keys(state, ("terrain/heights",))
-        return {"heights": env_state.array(state, "terrain/heights", self.arena.heights)}
+        return {
+            "arena": self.arena.check_episode_state(state),
+            "task": self.task.check_episode_state(state),
+        }
 
     def _set_episode_state(self, checked: dict) -> None:
-        self.arena.write_heights(checked["heights"])
+        self.arena.set_episode_state(checked["arena"], self.data)
+        self.task.set_episode_state(checked["task"])
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -317,16 +302,16 @@ class TrackEnv(gym.Env):
         super().reset(seed=seed)
         if task is not None:
             self._task_vector = task
-        self._new_terrain()
+        self.arena.regenerate(self.get_task(), self.np_random)
+        self.task.begin_episode()
         mujoco.mj_resetData(self.model, self.data)
-        self._place_body()
+        self.arena.place_body(self.data, self.np_random)
         mujoco.mj_forward(self.model, self.data)
         self._episode_return = 0.0
         self._warnings = 0
-        self._apply_action(
-            np.zeros(self.body.action_size)
-        )  # the original returns the obs after one idle step
-        self.physics.step()
+        # the original returns the obs after one idle step
+        self._control_step(np.zeros(self.body.action_size))
+        self.arena.settle(self.data, self._control_step)  # Parkour's climbers grasp
         obs = self.task.reset(self.model, self.data)
         if self.render_mode == "human":
             self.render()
@@ -374,21 +359,16 @@ class TrackEnv(gym.Env):
             self._renderer = None
 
     # ------------------------------------------------------------------ internals
-    def _new_terrain(self) -> None:
-        self.arena.write_heights(
-            self.generator.profile(self.get_task(), self.np_random, self.arena.start_pad)
-        )
-
-    def _place_body(self) -> None:
-        self.bound.place(self.data, self.arena.start_x, self.body.spawn_height)
-        push = self.np_random.uniform(-INIT_PUSH, INIT_PUSH)  # drawn for every body: same stream
-        if not self.body.initial_push:  # the original never pushes the fish
-            return
-        # the one-off horizontal force of the original, as the velocity change it gives in one step
-        self.data.qvel[self.bound.root_dof] = push * CONTROL_DT / self.bound.total_mass
+    def _control_step(self, action: np.ndarray) -> None:
+        self._apply_action(action)
+        self.physics.step()
 
     def _apply_action(self, action: np.ndarray) -> None:
-        """Velocity servos towards speed*sign(a) with torque capped at torque*|a| (Box2D motor semantics)."""
+        """Velocity servos towards speed*sign(a) with torque capped at torque*|a| (Box2D motor
+        semantics), after the task's rules (Parkour: dead bodies play zeros) and the arena's
+        forces (Parkour: grasps released, water)."""
+        action = self.task.played(action)
+        self.arena.before_step(self.data, action)
         motors = action[: self._nb_motors]
         magnitude = np.minimum(np.abs(motors), 1.0) * self.body.torque
         self._forcerange[self._ctrl_ids, 0] = -magnitude

@@ -118,6 +118,23 @@ class TrackTask:
             s -= ANGLE_PENALTY * abs(angle)
         return s
 
+    def begin_episode(self) -> None:
+        """Clear per-episode rules before the body is placed (a track task has none)."""
+
+    def played(self, action: np.ndarray) -> np.ndarray:
+        """The action the body plays (on a track: the one given)."""
+        return action
+
+    def episode_state(self) -> dict:
+        """Per-episode rule state beyond the shaping and contact flag (none on a track)."""
+        return {}
+
+    def check_episode_state(self, state) -> dict:
+        return {}
+
+    def set_episode_state(self, checked: dict) -> None:
+        """Restore what `check_episode_state` returned."""
+
     def reset(self, model, data) -> np.ndarray:
         touched = self.update_contacts(data)
         x, head = self.head_state(data)

@@ -1,0 +1,65 @@
+"""Stump and Hexagon Tracks as compositions: a track arena (one heightfield) and the track task.
+
+A composition is what tells envs apart: its task space and curriculum facts, which tasks its
+generator can build, and the arena and task it builds for a body (`TrackEnv` binds and steps
+them; Parkour's composition is in acl3d.envs.parkour_env).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from acl3d.bodies.base import Body
+from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.envs.arena import TrackArena
+from acl3d.envs.lidar import ProfileLidar
+from acl3d.envs.profiles import HEXAGON_TRACKS, STUMP_TRACKS
+from acl3d.envs.track_task import TrackTask
+from acl3d.terrain.tracks import TrackGenerator, TrackGrid, check_buildable, track_task_space
+
+
+class TrackKind(NamedTuple):
+    """One kind of track: its default task parameters and its curriculum facts."""
+
+    parameters: tuple[str, ...]
+    profile: CurriculumProfile
+
+
+TRACKS = {
+    "stump": TrackKind(("stump_height", "obstacle_spacing"), STUMP_TRACKS),
+    "hexagon": TrackKind(("poly_shape",), HEXAGON_TRACKS),
+}
+
+
+TRACKS = {
+    "stump": TrackKind(("stump_height", "obstacle_spacing"), STUMP_TRACKS),
+    "hexagon": TrackKind(("poly_shape",), HEXAGON_TRACKS),
+}
+
+
+class TrackComposition:
+    """Stump or Hexagon Tracks: a `TrackArena` (one heightfield) and a `TrackTask`.
+
+    A composition is what tells envs apart: its task space and curriculum facts, which tasks its
+    generator can build, and the arena and task it builds for a body.
+    """
+
+    def __init__(self, track: str, task_parameters: tuple[str, ...] | None):
+        self.track = track
+        names = TRACKS[track].parameters if task_parameters is None else task_parameters
+        self.task_space = track_task_space(names)
+        self.profile = TRACKS[track].profile
+
+    def check_buildable(self, task: dict) -> None:
+        """Raise ValueError if the generator cannot build `task` (names the parameter and range)."""
+        check_buildable(task)
+
+    def build_arena(self, body: Body) -> TrackArena:
+        return TrackArena(body, TrackGenerator(TrackGrid()))
+
+    def build_task(self, arena: TrackArena) -> TrackTask:
+        return TrackTask(arena.bound, ProfileLidar(arena, "down"))
+
+    def signature(self) -> str:
+        """What a saved state must match beyond the body and model sizes (nothing more here)."""
+        return ""
