@@ -152,21 +152,30 @@ def real_array(name: str, value, *, shape: tuple[int, ...] | None = None, size: 
     `shape` asks for an exact shape, `size` for a number of elements (the array is then
     flattened). Bools, strings, complex numbers and objects are rejected, not converted.
     """
+    if isinstance(value, np.ndarray) and value.dtype.kind == "f" and value.shape == shape:
+        arr = value.astype(np.float64)  # the env-step fast path: a float array of the right shape
+    else:
+        if not only_reals(value):
+            raise _not_real_array(name, value, shape, size)
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (OverflowError, ValueError):  # ints beyond float range, ragged lists
+            raise _not_real_array(name, value, shape, size) from None
+        if size is not None:
+            arr = arr.reshape(-1)
+        if (shape is not None and arr.shape != tuple(shape)) or (
+            size is not None and arr.size != size
+        ):
+            raise _not_real_array(name, value, shape, size)
+    if not np.isfinite(arr).all():
+        raise _not_real_array(name, value, shape, size)
+    return arr
+
+
+def _not_real_array(name: str, value, shape, size) -> ValueError:
     what = "finite real numbers"
     if shape is not None:
-        what += f" of shape {shape}"
+        what += f" of shape {tuple(shape)}"
     elif size is not None:
         what += f" ({size} value{'s' if size != 1 else ''})"
-    if not only_reals(value):
-        raise fail(name, value, what)
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (OverflowError, ValueError):  # ints beyond float range, ragged lists
-        raise fail(name, value, what) from None
-    if size is not None:
-        arr = arr.reshape(-1)
-    if (shape is not None and arr.shape != tuple(shape)) or (size is not None and arr.size != size):
-        raise fail(name, value, what)
-    if not np.all(np.isfinite(arr)):
-        raise fail(name, value, what)
-    return arr
+    return fail(name, value, what)

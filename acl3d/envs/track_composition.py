@@ -31,12 +31,6 @@ TRACKS = {
 }
 
 
-TRACKS = {
-    "stump": TrackKind(("stump_height", "obstacle_spacing"), STUMP_TRACKS),
-    "hexagon": TrackKind(("poly_shape",), HEXAGON_TRACKS),
-}
-
-
 class TrackComposition:
     """Stump or Hexagon Tracks: a `TrackArena` (one heightfield) and a `TrackTask`.
 
