@@ -13,8 +13,9 @@ run directory can store it as JSON + NPZ without pickle. The pieces here are sha
   step, which recomputes every derived quantity exactly, then checks that the replay lands on the
   saved current state.
 * `rng_state` / `rng_from_state`: a numpy bit generator's state, big integers as decimal strings.
-* `get_env_state` / `set_env_state`: the same for an env made by `gymnasium.make`, with the
-  TimeLimit and OrderEnforcing counters of its wrappers.
+* `get_env_state` / `set_env_state`: the same for an env made by `gymnasium.make`, with its
+  TimeLimit count; `restore_wrappers` puts Gymnasium's wrappers of a restored env in the state
+  of a running episode (also used by training's curriculum workers).
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ from acl3d import validation
 INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMSTART
 _JSON_SCALARS = (str, int, float, bool, type(None))
-_WRAPPER_COUNTERS = ("_elapsed_steps", "_has_reset")  # TimeLimit, OrderEnforcing
 
 
 def check_keys(state, keys, what: str = "state") -> None:
@@ -197,29 +197,42 @@ def is_serialisable(state: Mapping) -> bool:
 
 # ---------------------------------------------------------------------- wrapped envs
 def get_env_state(env: gym.Env) -> dict:
-    """`env.unwrapped.get_state()` plus the counters of Gymnasium's wrappers around it
-    (`wrappers/<depth>/<counter>`), for an env made by `gymnasium.make`."""
+    """`env.unwrapped.get_state()` plus the step count of the env's TimeLimit wrapper
+    (`wrappers/<depth>/_elapsed_steps`), for an env made by `gymnasium.make`."""
     state = dict(env.unwrapped.get_state())
-    depth = 0
-    while isinstance(env, gym.Wrapper):
-        for counter in _WRAPPER_COUNTERS:
-            if hasattr(env, counter):
-                state[f"wrappers/{depth}/{counter}"] = getattr(env, counter)
-        env, depth = env.env, depth + 1
+    for depth, wrapper in _time_limits(env):
+        state[f"wrappers/{depth}/_elapsed_steps"] = wrapper._elapsed_steps
     return state
 
 
 def set_env_state(env: gym.Env, state: Mapping) -> None:
     """Inverse of `get_env_state` on an env made with the same arguments."""
-    updates, depth, wrapper = [], 0, env
-    while isinstance(wrapper, gym.Wrapper):
-        for counter in _WRAPPER_COUNTERS:
-            key = f"wrappers/{depth}/{counter}"
-            if hasattr(wrapper, counter):
-                check_keys(state, [key])
-                kind = "flag" if counter == "_has_reset" else "integer"
-                updates.append((wrapper, counter, scalar(state, key, kind, 0)))
-        wrapper, depth = wrapper.env, depth + 1
+    elapsed = 0
+    for depth, _ in _time_limits(env):
+        key = f"wrappers/{depth}/_elapsed_steps"
+        check_keys(state, [key])
+        elapsed = scalar(state, key, "integer", 0)
     env.unwrapped.set_state({k: v for k, v in state.items() if not k.startswith("wrappers/")})
-    for wrapper, counter, value in updates:
-        setattr(wrapper, counter, value)
+    restore_wrappers(env, elapsed)
+
+
+def restore_wrappers(env: gym.Env, elapsed_steps: int) -> None:
+    """Gymnasium's wrappers of a restored env, as after `elapsed_steps` steps of a running
+    episode: TimeLimit's step count, OrderEnforcing's reset flag, and PassiveEnvChecker's
+    once-only checks marked done (its reference data from the first reset is not state)."""
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, gym.wrappers.TimeLimit):
+            env._elapsed_steps = elapsed_steps
+        elif isinstance(env, gym.wrappers.OrderEnforcing):
+            env._has_reset = True
+        elif isinstance(env, gym.wrappers.PassiveEnvChecker):
+            env.checked_reset = env.checked_step = env.checked_data_reuse = True
+        env = env.env
+
+
+def _time_limits(env: gym.Env):
+    depth = 0
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, gym.wrappers.TimeLimit):
+            yield depth, env
+        env, depth = env.env, depth + 1

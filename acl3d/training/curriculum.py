@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, TimeLimit
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from acl3d.envs.env_state import restore_wrappers
 from acl3d.envs.track_task import SUCCESS_RETURN as SUCCESS_THRESHOLD
 
 INFO_KEY = "curriculum"
@@ -154,7 +154,7 @@ class CurriculumEnv(gym.Wrapper):
         """Inverse of `get_state()` (on a worker built with the same arguments)."""
         if state["env"] is not None:
             self.env.unwrapped.set_state(state["env"])
-            _restore_wrappers(self.env, int(state["length"]))
+            restore_wrappers(self.env, int(state["length"]))
         self._queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
         self._task = None if state["task"] is None else np.asarray(state["task"], np.float32)
         self._return, self._length = float(state["return"]), int(state["length"])
@@ -165,20 +165,6 @@ class CurriculumEnv(gym.Wrapper):
         if self._last_obs is not None:
             return self._last_obs
         return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
-
-
-def _restore_wrappers(env, length: int) -> None:
-    """Gymnasium's wrappers of a restored env, as after `length` steps of a running episode:
-    TimeLimit's step count, OrderEnforcing's reset flag, and PassiveEnvChecker's once-only
-    checks marked done (its reference data from the first reset is not state)."""
-    while isinstance(env, gym.Wrapper):
-        if isinstance(env, TimeLimit):
-            env._elapsed_steps = length
-        elif isinstance(env, OrderEnforcing):
-            env._has_reset = True
-        elif isinstance(env, PassiveEnvChecker):
-            env.checked_reset = env.checked_step = env.checked_data_reuse = True
-        env = env.env
 
 
 def raise_worker_errors(infos, where: str) -> None:
