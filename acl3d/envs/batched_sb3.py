@@ -65,7 +65,6 @@ class SubEnv:
             "length": length,
             "initial_obs": self.initial_obs,
             "last_obs": self.last_obs,
-            "wrappers": [{"_elapsed_steps": length}],
             "env": self.env.get_state(),
         }
 
