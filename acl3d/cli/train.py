@@ -74,6 +74,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--buffer-size", type=_count, help="SAC replay buffer size (benchmark: 2e6)")
     g.add_argument(
+        "--exclude-exploratory",
+        choices=tuple(_EXCLUDE_EXPLORATORY),
+        help="leave Robust PLR / ACCEL's new and edited levels out of the student's updates "
+        "(default auto: on for robust-plr and accel with ppo)",
+    )
+    g.add_argument(
         "--env-kwarg",
         action="append",
         metavar="K=V",
@@ -128,6 +134,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="do not store the SAC replay buffer in checkpoints (resume then starts with an empty buffer)",
     )
     g.add_argument("--quiet", dest="verbose", action="store_const", const=0, default=None)
+
+
+_EXCLUDE_EXPLORATORY = {"auto": "auto", "on": True, "off": False}
 
 
 def _count(text: str) -> int:
@@ -214,6 +223,8 @@ def options_from_args(args) -> dict:
         value = getattr(args, name)
         if value is not None:
             options[name] = value
+    if args.exclude_exploratory is not None:
+        options["exclude_exploratory"] = _EXCLUDE_EXPLORATORY[args.exclude_exploratory]
     for name, items, parse in (
         ("bounds", args.bounds, parse_bounds),
         ("teacher_params", args.teacher_param, lambda x: _key_values(x, "--teacher-param")),

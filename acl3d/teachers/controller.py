@@ -131,15 +131,29 @@ class TeacherController:
     def scale(self, episode_return: float) -> float:
         return self.profile.scale(episode_return)
 
+    @property
+    def marks_exploratory(self) -> bool:
+        """Whether the teacher marks some levels exploratory (Robust PLR, ACCEL)."""
+        return hasattr(self.teacher, "is_exploratory")
+
     # ------------------------------------------------------------------ training
     def sample_task(self) -> np.ndarray:
         """The next training task (float32, environment space)."""
-        task = self.teacher.sample_task()
+        return self.sample_training_task()[0]
+
+    def sample_training_task(self) -> tuple[np.ndarray, bool]:
+        """The next training task (float32, environment space) and whether its episode is
+        exploratory: a new or edited level on which Robust PLR / ACCEL do not update the
+        student. Decided now, in the teacher's space (a shuffled float32 task does not map back
+        exactly), because the teacher forgets the proposal once its episode is reported."""
+        teacher_task = self.teacher.sample_task()
+        exploratory = self.marks_exploratory and bool(self.teacher.is_exploratory(teacher_task))
+        task = teacher_task
         if self.shuffler is not None:
             task = self.shuffler.forward(task)
         task = np.asarray(task, dtype=np.float32)
         self._records["sampled_tasks"].append(task)
-        return task
+        return task, exploratory
 
     def record_step(self, state, action, reward, next_state, done, worker: int = 0) -> None:
         """One environment step, for teachers whose `needs` include "step_rewards".

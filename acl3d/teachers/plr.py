@@ -21,8 +21,9 @@ given (DCD's ACCEL starts from easy levels), else uniform.
 
 Robust PLR trains the student only on replayed levels. The teacher marks every proposed task as
 exploratory (new or edited level) or not (`is_exploratory(task)`, and the "exploratory" book-
-keeping); acl3d's SB3 training still learns from every episode, so in training the student's
-updates follow PLR, the curriculum PLR⊥ (see the README).
+keeping); acl3d's training asks right after sampling and leaves those episodes' transitions out
+of the student's gradient updates (`acl3d.training.masked_updates`), so the student learns on
+replayed levels only.
 
 Avoided bugs of public implementations: levels are only replaced by higher-scoring ones
 (minimax#6/#7 replaced them with random levels after one episode), rank weights never divide by
@@ -136,10 +137,12 @@ class RobustPLR(Teacher):
         return task
 
     def is_exploratory(self, task) -> bool:
-        """Whether `task` (proposed, not yet reported) is a new or edited level: Robust PLR would
-        not update the student's policy on its episode."""
+        """Whether `task` (proposed, not yet reported) is a new or edited level: Robust PLR does
+        not update the student's policy on its episode. When the same vector is in flight more
+        than once (ACCEL's `easy_task`), the latest proposal answers, so asking right after
+        `sample_task()` gives that sample's own kind."""
         task = self._check_task(task)
-        for t, kind, _ in self._pending:
+        for t, kind, _ in reversed(self._pending):
             if np.array_equal(t, task):
                 return kind != REPLAY
         return True

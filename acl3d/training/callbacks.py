@@ -4,6 +4,7 @@
 * `StudentResetCallback` re-initialise the student every N steps (the forgetting-student profile)
 * `EvaluationCallback`   test-set evaluation -> evals.csv, evals_tasks.csv, TensorBoard eval/*
 * `CheckpointCallback`   a complete, resumable checkpoint
+* `ExclusionCallback`    marks exploratory episodes' transitions so PPO's update leaves them out
 
 Periodic work happens at rollout starts, i.e. right after a training update, where SB3's state
 is complete and a checkpoint resumes bit for bit; evaluation and checkpoint also run once at the
@@ -205,11 +206,31 @@ class CheckpointCallback(PeriodicCallback):
         self.session.save_checkpoint()
 
 
+class ExclusionCallback(BaseCallback):
+    """Robust PLR / ACCEL: at every step, marks in PPO's rollout buffer the transitions that
+    belong to exploratory episodes (before SB3 adds them); logs the excluded fraction of each
+    rollout (`curriculum/excluded_fraction`)."""
+
+    def __init__(self, session: Session):
+        super().__init__()
+        self.session = session
+
+    def _on_step(self) -> bool:
+        buffer = self.model.rollout_buffer
+        buffer.excluded[buffer.pos] = self.session.curriculum_env.step_exploratory
+        return True
+
+    def _on_rollout_end(self) -> None:
+        excluded = self.model.rollout_buffer.excluded
+        self.logger.record("curriculum/excluded_fraction", float(excluded.mean()))
+
+
 def run_callbacks(session: Session, start_step: int) -> list[BaseCallback]:
-    """The run's callbacks in the order they must run: reset, evaluate, log, checkpoint."""
+    """The run's callbacks in the order they must run: exclusions, reset, evaluate, log,
+    checkpoint."""
     c = session.config
     episodes = EpisodeLogCallback(session)
-    out: list[BaseCallback] = []
+    out: list[BaseCallback] = [ExclusionCallback(session)] if session.exclude_exploratory else []
     if c.reset_student_every:
         out.append(StudentResetCallback(c.reset_student_every, start_step))
     out += [

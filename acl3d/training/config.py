@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from acl3d import validation as check
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
@@ -41,6 +41,9 @@ class TrainConfig:
     expert_knowledge: str = "low"
     shuffle_dimensions: bool = False
     scale_reward: bool = False
+    # Robust PLR / ACCEL: the student does not learn on new or edited levels ("auto": whenever
+    # the teacher marks such levels and the student can leave them out)
+    exclude_exploratory: Literal["auto"] | bool = "auto"
     reset_student_every: int = 0
     bounds: dict[str, list[float]] = field(default_factory=dict)
     teacher_params: dict[str, Any] = field(default_factory=dict)
@@ -174,6 +177,36 @@ def validate(config: TrainConfig) -> None:
             f"reset_student_every ({config.reset_student_every}) must be < steps ({config.steps}), "
             "otherwise the student is never reset"
         )
+    excludes_exploratory(config)
+
+
+EXCLUDING_STUDENTS = ("ppo",)  # SAC's replay buffer has no per-transition exclusion (yet)
+
+
+def excludes_exploratory(config: TrainConfig) -> bool:
+    """Whether the run leaves the transitions of exploratory episodes (Robust PLR / ACCEL's new
+    and edited levels) out of the student's updates; `exclude_exploratory=True` with a teacher
+    that marks no level or a student that cannot exclude them is refused."""
+    from acl3d.teachers import TEACHERS, teacher_class
+
+    value = config.exclude_exploratory
+    if not (isinstance(value, bool) or (isinstance(value, str) and value == "auto")):
+        raise check.fail("exclude_exploratory", value, '"auto", True or False')
+    marking = [name for name in TEACHERS if hasattr(teacher_class(name), "is_exploratory")]
+    if value is True and config.teacher not in marking:
+        raise ValueError(
+            f"exclude_exploratory=True: teacher {config.teacher!r} marks no exploratory levels; "
+            f"valid with the teachers {', '.join(marking)}"
+        )
+    if value is True and config.student not in EXCLUDING_STUDENTS:
+        raise ValueError(
+            f"exclude_exploratory=True: student {config.student!r} learns from a replay buffer, "
+            f"where excluding transitions is not implemented; valid with: "
+            f"{', '.join(EXCLUDING_STUDENTS)}"
+        )
+    if value == "auto":
+        return config.teacher in marking and config.student in EXCLUDING_STUDENTS
+    return value
 
 
 def student_params(config: TrainConfig) -> dict:

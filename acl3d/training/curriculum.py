@@ -12,7 +12,11 @@ from a small queue that the main process keeps filled (Syllabus' pattern):
   never waits for the teacher; it hands every finished episode to the teacher exactly once.
 
 With one task of prefetch, the teacher learns the outcome of a worker's episode k before it
-samples that worker's task k + 2. Errors raised inside a worker env are caught and carried back
+samples that worker's task k + 2.
+
+Exploratory levels (Robust PLR / ACCEL's new or edited ones, on which the student must not
+learn) are flagged when their task is sampled; the flag follows the task through the queue and
+`step_exploratory` tells, for each stepped transition, whether its episode is exploratory. Errors raised inside a worker env are caught and carried back
 with their traceback, so a crash stops training with a readable message on both vec env types.
 """
 
@@ -178,8 +182,8 @@ class CurriculumVecEnv(VecEnvWrapper):
 
     `controller` is an `acl3d.teachers.controller.TeacherController` (anything with
     `sample_task`, `record_episode`, `needs` and optionally `record_step` /
-    `maybe_sample_periodically`). It must sit directly on the worker `VecEnv` (below any
-    VecNormalize) so that it sees raw observations and rewards.
+    `maybe_sample_periodically`, `sample_training_task`). It must sit directly on the worker
+    `VecEnv` (below any VecNormalize) so that it sees raw observations and rewards.
 
     On an in-process batched env (`acl3d.envs.batched_sb3.BatchedVecEnv`, which has a
     `task_source`) nothing is queued: each sub-env pulls its next task from `next_task` at its
@@ -194,6 +198,10 @@ class CurriculumVecEnv(VecEnvWrapper):
         self.total_steps = int(total_steps)
         self.episodes_done = 0
         self._pending = np.zeros(self.num_envs, dtype=np.int64)
+        # exploratory flags: of each env's running episode, of its queued tasks, of the last step
+        self._running_exploratory = np.zeros(self.num_envs, dtype=bool)
+        self._queued_exploratory: list[deque[bool]] = [deque() for _ in range(self.num_envs)]
+        self._step_exploratory = np.zeros(self.num_envs, dtype=bool)
         self._finished: list[Episode] = []
         self._last_obs = None
         self._actions = None
@@ -205,13 +213,34 @@ class CurriculumVecEnv(VecEnvWrapper):
 
     def next_task(self, index: int) -> np.ndarray:
         """The teacher's next task for sub-env `index` (pulled at its reset)."""
-        return np.asarray(self.controller.sample_task(), dtype=np.float32)
+        task, self._running_exploratory[index] = self._sample()
+        return task
+
+    def _sample(self) -> tuple[np.ndarray, bool]:
+        """(task, exploratory); a controller without `sample_training_task` marks no level."""
+        sample = getattr(self.controller, "sample_training_task", None)
+        task, exploratory = sample() if sample else (self.controller.sample_task(), False)
+        return np.asarray(task, dtype=np.float32), bool(exploratory)
+
+    @property
+    def step_exploratory(self) -> np.ndarray:
+        """Read-only (n_envs,) bools: whether each env's transition of the latest step belongs to
+        an exploratory episode (flags taken at `step_async`, before any auto-reset)."""
+        flags = self._step_exploratory.copy()
+        flags.flags.writeable = False
+        return flags
 
     # -------------------------------------------------------------- queue management
     def _push(self, index: int) -> None:
-        task = np.asarray(self.controller.sample_task(), dtype=np.float32)
+        task, exploratory = self._sample()
         self.venv.env_method("push_task", task, indices=[index])
+        self._queued_exploratory[index].append(exploratory)
         self._pending[index] += 1
+
+    def _start_queued(self, index: int) -> None:
+        """Worker `index` began an episode on the head of its queue."""
+        self._pending[index] -= 1
+        self._running_exploratory[index] = self._queued_exploratory[index].popleft()
 
     def reset(self):
         if self._pull:
@@ -222,14 +251,15 @@ class CurriculumVecEnv(VecEnvWrapper):
                 self._push(i)
         obs = self.venv.reset()
         raise_worker_errors(getattr(self.venv, "reset_infos", []), "reset")
-        self._pending -= 1  # every worker consumed one queued task
         for i in range(self.num_envs):
+            self._start_queued(i)  # every worker consumed one queued task
             self._push(i)
         self._last_obs = obs
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
+        self._step_exploratory = self._running_exploratory.copy()
         self.venv.step_async(actions)
 
     def step_wait(self):
@@ -262,7 +292,7 @@ class CurriculumVecEnv(VecEnvWrapper):
         for i in np.flatnonzero(dones):
             self._report(int(i), infos[i])
             if not self._pull:
-                self._pending[i] -= 1  # the auto-reset consumed the prefetched task
+                self._start_queued(int(i))  # the auto-reset consumed the prefetched task
                 self._push(int(i))
         maybe_sample = getattr(self.controller, "maybe_sample_periodically", None)
         if maybe_sample is not None:
@@ -294,6 +324,8 @@ class CurriculumVecEnv(VecEnvWrapper):
             "total_steps": self.total_steps,
             "episodes_done": self.episodes_done,
             "pending": self._pending.copy(),
+            "running_exploratory": self._running_exploratory.copy(),
+            "queued_exploratory": [np.array(q, dtype=bool) for q in self._queued_exploratory],
             "last_obs": self._last_obs,
             "workers": self.venv.env_method("get_state"),
         }
@@ -310,6 +342,12 @@ class CurriculumVecEnv(VecEnvWrapper):
         self.total_steps = int(state["total_steps"])
         self.episodes_done = int(state["episodes_done"])
         self._pending = np.asarray(state["pending"], dtype=np.int64).copy()
+        # checkpoints written before exploratory levels were tracked flag none
+        self._running_exploratory = np.asarray(
+            state.get("running_exploratory", np.zeros(self.num_envs)), dtype=bool
+        ).copy()
+        queued = state.get("queued_exploratory") or [[False] * int(n) for n in self._pending]
+        self._queued_exploratory = [deque(bool(f) for f in q) for q in queued]
         self._last_obs = state["last_obs"]
         self._finished = []
 

@@ -20,7 +20,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
 from acl3d.training import students
-from acl3d.training.config import TrainConfig, student_params
+from acl3d.training.config import TrainConfig, excludes_exploratory, student_params
 from acl3d.training.curriculum import CurriculumVecEnv
 from acl3d.training.evaluation import EvalResult, evaluate, make_predict
 from acl3d.training.run_dir import RunDir, atomic_replace, atomic_state_files
@@ -78,6 +78,7 @@ class Session:
         self.task_names = task_space.flat_names()
         self.controller = build_controller(config, task_space, profile)
         self.params = student_params(config)
+        self.exclude_exploratory = excludes_exploratory(config)
         self.train_env = self.eval_env = self.curriculum_env = self.vecnorm = None
         self.model = None
         self.started = time.perf_counter()
@@ -130,7 +131,13 @@ class Session:
         c = self.config
         if self.resume_from is None:
             self.model = students.build(
-                c.student, self.params, self.train_env, c.seed, str(self.run.tb), c.device
+                c.student,
+                self.params,
+                self.train_env,
+                c.seed,
+                str(self.run.tb),
+                c.device,
+                exclude_exploratory=self.exclude_exploratory,
             )
         else:
             self._restore(self.resume_from)

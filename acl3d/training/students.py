@@ -18,10 +18,12 @@ import torch
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from acl3d.training.exclusion import ExcludingPPO, ExcludingRolloutBuffer
+
 STUDENTS: tuple[str, ...] = ("sac", "ppo")
 PRESETS: tuple[str, ...] = ("benchmark", "fast")
 
-_ALGOS = {"sac": SAC, "ppo": PPO}
+_ALGOS = {"sac": SAC, "ppo": ExcludingPPO}  # ExcludingPPO is PPO unless transitions are excluded
 MANY_ENVS = 16  # from this many envs on, the fast presets use bigger collections
 
 
@@ -153,9 +155,15 @@ def build(
     seed: int,
     tensorboard_log: str | None = None,
     device: str = "cpu",
+    exclude_exploratory: bool = False,
 ) -> BaseAlgorithm:
-    """Instantiate the SB3 model from `hyperparameters(...)` output."""
+    """Instantiate the SB3 model from `hyperparameters(...)` output; `exclude_exploratory`
+    (PPO only) gives it a rollout buffer that leaves marked transitions out of the update."""
     kwargs = dict(params)
+    if exclude_exploratory:
+        if student != "ppo":
+            raise ValueError(f"exclude_exploratory=True: not implemented for student {student!r}")
+        kwargs["rollout_buffer_class"] = ExcludingRolloutBuffer
     policy_kwargs = dict(kwargs.pop("policy_kwargs"))
     act = policy_kwargs.get("activation_fn")
     if isinstance(act, str):
@@ -199,7 +207,7 @@ def detect(path) -> str:
 
 
 def algorithm_name(model: BaseAlgorithm) -> str:
-    for name, cls in _ALGOS.items():
+    for name, cls in (("sac", SAC), ("ppo", PPO)):
         if isinstance(model, cls):
             return name
     raise ValueError(f"unsupported model type {type(model).__name__}; valid: SAC, PPO")

@@ -92,8 +92,16 @@ def train(
             "eval_every": config.effective_eval_every,
             "checkpoint_every": config.effective_checkpoint_every,
             "periodical_samples_every": config.effective_periodical_samples,
+            "exclude_exploratory": session.exclude_exploratory,
         },
     }
+    if session.exclude_exploratory and config.verbose:
+        print(
+            f"[acl3d] {config.teacher}: the episodes of exploratory (new or edited) levels are "
+            f"excluded from {config.student.upper()}'s updates (Robust PLR's PLR⊥)",
+            file=sys.stderr,
+            flush=True,
+        )
     if resume_from is None:
         run.create(config.to_dict(), **sections)
     else:
