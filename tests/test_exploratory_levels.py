@@ -3,6 +3,8 @@ edited levels) are left out of PPO's update, on real training runs."""
 
 from __future__ import annotations
 
+from collections import Counter
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from test_resume import STEPS, assert_same_run
 
 from acl3d.cli import main
 from acl3d.teachers.base import load_state
+from acl3d.teachers.controller import TeacherController
 from acl3d.training import students, train
 from acl3d.training.exclusion import ExcludingPPO, ExcludingRolloutBuffer
 from acl3d.training.run_dir import RunDir
@@ -197,3 +200,28 @@ def test_resume_is_exact_with_exclusions(tmp_path):
     train(RUN, vec_env="dummy", steps=STEPS // 2, out=str(parts))
     train(resume=parts, steps=STEPS, progress_bar=False)
     assert_same_run(whole, parts)
+
+
+@pytest.mark.parametrize("teacher", ["robust-plr", "accel"])
+def test_flags_at_sampling_are_the_teachers_own_with_shuffled_dimensions(teacher):
+    """The controller flags each task when it samples it (in the teacher's space); the teacher
+    recognises its shuffled, float32 proposals when their outcomes come back in any order. (Two
+    proposals of the same vector in flight, e.g. ACCEL edits clipped to a corner, cannot be told
+    apart: they may swap their flags, so levels are compared with their flags as multisets.)"""
+    space = {"stump_height": [0.0, 3.0], "obstacle_spacing": [0.0, 6.0]}
+    controller = TeacherController(
+        teacher, space, 0, shuffle_dimensions=True, teacher_params={"buffer_size": 8}
+    )
+    rng, reported, in_flight = np.random.default_rng(0), [], []
+    for _ in range(300):
+        in_flight.append(controller.sample_training_task())
+        if len(in_flight) == 4:
+            task, flag = in_flight.pop(int(rng.integers(4)))
+            reported.append((tuple(np.round(task, 4)), flag))  # edits may come back ~1e-16 off
+            controller.record_episode(task, float(rng.uniform(0, 200)), 10, False)
+    marked = controller.teacher.bk["exploratory"]
+    assert Counter(zip([t for t, _ in reported], marked)) == Counter(reported)
+    if teacher == "robust-plr":  # uniform new levels never repeat: the same order
+        assert marked == [flag for _, flag in reported]
+    assert 0 < marked.count(False) < len(marked)
+    assert not TeacherController("alp-gmm", space, 0).sample_training_task()[1]

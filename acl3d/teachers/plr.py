@@ -43,6 +43,9 @@ from acl3d.validation import choice, count, real, real_array
 
 NEW, REPLAY, EDIT = 0, 1, 2  # how a proposed level came about (book-keeping "kinds")
 MAX_PENDING = 4096  # proposed tasks awaiting their outcome (older ones are forgotten)
+# A reported task is its proposal when every value is this close (in ranges): a task that went
+# through the controller's dimension shuffler and float32 comes back off by ~1e-7 of a range.
+MATCH_TOLERANCE = 1e-5
 
 
 def positive_value_loss(rewards, values, gamma: float, lam: float) -> float:
@@ -141,11 +144,17 @@ class RobustPLR(Teacher):
         not update the student's policy on its episode. When the same vector is in flight more
         than once (ACCEL's `easy_task`), the latest proposal answers, so asking right after
         `sample_task()` gives that sample's own kind."""
-        task = self._check_task(task)
-        for t, kind, _ in reversed(self._pending):
-            if np.array_equal(t, task):
-                return kind != REPLAY
-        return True
+        matches = self._pending_matches(self._check_task(task))
+        return not len(matches) or self._pending[matches[-1]][1] != REPLAY
+
+    def _pending_matches(self, task: np.ndarray) -> np.ndarray:
+        """Indices of the pending proposals that `task` is (oldest first)."""
+        if not self._pending:
+            return np.zeros(0, dtype=np.int64)
+        proposed = np.stack([t for t, _, _ in self._pending])
+        span = np.where(self.maxs > self.mins, self.maxs - self.mins, 1.0)
+        off = np.abs(proposed - task) / span
+        return np.flatnonzero((off <= MATCH_TOLERANCE).all(axis=1))
 
     def _non_exploratory_sample(self) -> np.ndarray:
         if not len(self.scores):
@@ -188,11 +197,11 @@ class RobustPLR(Teacher):
         return positive_value_loss(rewards, values, self.discount, self.gae_lambda)
 
     def _match_pending(self, task: np.ndarray) -> tuple[int, int]:
-        for i, (t, kind, index) in enumerate(self._pending):
-            if np.array_equal(t, task):
-                del self._pending[i]
-                return kind, index
-        return NEW, -1  # a task the teacher did not propose: treated as a new level
+        matches = self._pending_matches(task)
+        if not len(matches):
+            return NEW, -1  # a task the teacher did not propose: treated as a new level
+        _, kind, index = self._pending.pop(int(matches[0]))
+        return kind, index
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
         kind, index = self._match_pending(task)
