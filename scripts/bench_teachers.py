@@ -16,8 +16,15 @@ Teachers that need more than returns get what `acl3d.toy.run_teacher` gives (suc
 episodes, a learner-value proxy); ADR, the oracle and terrain levels get toy thresholds
 (`toy_teacher_params`). A teacher that both presets configure alike runs once.
 
+`--reference` also runs the original algorithms (`scripts/reference_teachers.py`: ALP-GMM,
+Covar-GMM, RIAC as published, teachDeepRL defaults) on the same variants and seeds, and reports
+their final score and Welch's p-value for the difference: a comparison with the originals
+measured in the same run, on any variant, size or number of seeds.
+
     python scripts/bench_teachers.py --teachers alp-gmm,covar-gmm,riac --preset teachdeeprl
     python scripts/bench_teachers.py --seeds 1 --episodes 5000 --variants unfeasible
+    python scripts/bench_teachers.py --reference --seeds 12 --variants unfeasible \
+        --teachers alp-gmm,covar-gmm,riac --preset teachdeeprl
 """
 
 from __future__ import annotations
@@ -27,8 +34,11 @@ import inspect
 import math
 import sys
 import time
+import warnings
 
 import numpy as np
+from reference_teachers import REFERENCES, make_reference
+from scipy.stats import ttest_ind
 
 from acl3d.teachers import TEACHERS, make, teacher_class
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
@@ -62,11 +72,23 @@ def make_env(variant: str, seed: int, nb_dims: int, ratio: float) -> tuple[ToyEn
 
 
 def bench_one(
-    name: str, preset: str, variant: str, seed: int, episodes: int, checkpoints, nb_dims, ratio
+    name: str,
+    preset: str | None,
+    variant: str,
+    seed: int,
+    episodes: int,
+    checkpoints,
+    nb_dims,
+    ratio,
 ) -> tuple[list[float], float]:
+    """Scores at `checkpoints` and CPU per 1000 episodes of one run; `preset=None` runs the
+    original algorithm (`reference_teachers`) instead of acl3d's teacher."""
     env, to_env = make_env(variant, seed, nb_dims, ratio)
-    params = preset_params(preset, name) | toy_teacher_params(name, env)
-    teacher = make(name, env.task_space(), seed=seed, **params)
+    if preset is None:
+        teacher = make_reference(name, env.task_space(), seed)
+    else:
+        params = preset_params(preset, name) | toy_teacher_params(name, env)
+        teacher = make(name, env.task_space(), seed=seed, **params)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     every = math.gcd(*checkpoints)
@@ -82,6 +104,17 @@ def effective_params(name: str, preset: str) -> dict:
         k: p.default for k, p in sig.parameters.items() if k not in ("self", "task_space", "seed")
     }
     return params | preset_params(preset, name)
+
+
+def compare_with_original(finals: np.ndarray, original: np.ndarray | None) -> str:
+    """Table cells: the original's final score, acl3d minus original, Welch's p-value."""
+    if original is None:
+        return " – | – | – |"
+    diff = finals.mean() - original.mean()
+    with warnings.catch_warnings():  # identical samples (e.g. all 0): p is nan, said as such
+        warnings.simplefilter("ignore", RuntimeWarning)
+        p = ttest_ind(finals, original, equal_var=False).pvalue if len(finals) > 1 else np.nan
+    return f" {original.mean():.1f} ± {original.std():.1f} | {diff:+.1f} | {p:.2f} |"
 
 
 def _names(text: str, valid, what: str, parser) -> list[str]:
@@ -105,6 +138,11 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--ratio", type=float, default=3.0, help="unfeasible: task-space side / learnable side"
     )
+    parser.add_argument(
+        "--reference",
+        action="store_true",
+        help="also run the original algorithms on the same variants and seeds",
+    )
     args = parser.parse_args(argv)
     names = _names(args.teachers, TEACHERS, "teacher", parser)
     variants = _names(args.variants, VARIANTS, "variant", parser)
@@ -122,10 +160,12 @@ def main(argv=None) -> int:
     standard = args.nb_dims == 2 and args.ratio == 3.0 and args.episodes == 20000
 
     head = " | ".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in checkpoints)
+    ref_head = f" original {head.split(' | ')[-1]} | diff | p (Welch) |" if args.reference else ""
     rows = [
-        f"| variant | teacher | preset | {head} | tDRL 20k | score ratio | CPU s/1000 ep | tDRL CPU | CPU ratio |",
-        "|" + "---|" * (len(checkpoints) + 8),
+        f"| variant | teacher | preset | {head} | tDRL 20k | score ratio | CPU s/1000 ep | tDRL CPU | CPU ratio |{ref_head}",
+        "|" + "---|" * (len(checkpoints) + 8 + 3 * args.reference),
     ]
+    originals: dict[tuple, np.ndarray] = {}  # (variant, teacher) -> final scores per seed
     done: dict[tuple, tuple] = {}  # a teacher the presets configure alike runs once
     for variant in variants:
         for preset in presets:
@@ -148,21 +188,39 @@ def main(argv=None) -> int:
                     ]
                     scores = np.asarray([r[0] for r in runs])
                     cpu = float(np.mean([r[1] for r in runs]))
-                    done[key] = (scores.mean(axis=0), scores.std(axis=0), cpu)
+                    done[key] = (scores.mean(axis=0), scores.std(axis=0), cpu, scores[:, -1])
                     print(
                         f"done {variant} {name} ({preset}) in {time.time() - t0:.0f} s",
                         file=sys.stderr,
                         flush=True,
                     )
-                mean, std, cpu = done[key]
+                mean, std, cpu, finals = done[key]
+                if args.reference and name in REFERENCES and (variant, name) not in originals:
+                    originals[variant, name] = np.asarray(
+                        [
+                            bench_one(
+                                name,
+                                None,
+                                variant,
+                                seed,
+                                args.episodes,
+                                checkpoints,
+                                args.nb_dims,
+                                args.ratio,
+                            )[0][-1]
+                            for seed in range(args.seeds)
+                        ]
+                    )
+                    print(f"done {variant} {name} (original)", file=sys.stderr, flush=True)
                 ref_s = REF_SCORE_20K.get(variant, {}).get(name) if standard else None
                 ref_c = REF_CPU_PER_1000.get(name)
                 cells = " | ".join(f"{m:.1f} ± {s:.1f}" for m, s in zip(mean, std))
                 score_ratio = f"{mean[-1] / ref_s:.2f}" if ref_s else "–"
                 cpu_ratio = f"{cpu / ref_c:.2f}" if ref_c else "–"
-                rows.append(
-                    f"| {variant} | {name} | {preset} | {cells} | {ref_s if ref_s is not None else '–'} | {score_ratio} | {cpu:.3f} | {ref_c if ref_c is not None else '–'} | {cpu_ratio} |"
-                )
+                row = f"| {variant} | {name} | {preset} | {cells} | {ref_s if ref_s is not None else '–'} | {score_ratio} | {cpu:.3f} | {ref_c if ref_c is not None else '–'} | {cpu_ratio} |"
+                if args.reference:
+                    row += compare_with_original(finals, originals.get((variant, name)))
+                rows.append(row)
     print(
         f"\n{args.seeds} seeds, {args.episodes} episodes, {args.nb_dims} relevant dims, 10 cubes/dim,"
         f" unfeasible ratio {args.ratio:g}; tDRL references: tDRL defaults, 20k episodes"
