@@ -37,7 +37,7 @@ import time
 import warnings
 
 import numpy as np
-from reference_teachers import REFERENCES, make_reference
+from reference_teachers import CPU_COMPARABLE, REFERENCES, make_reference
 from scipy.stats import ttest_ind
 
 from acl3d.teachers import TEACHERS, make, teacher_class
@@ -106,15 +106,18 @@ def effective_params(name: str, preset: str) -> dict:
     return params | preset_params(preset, name)
 
 
-def compare_with_original(finals: np.ndarray, original: np.ndarray | None) -> str:
-    """Table cells: the original's final score, acl3d minus original, Welch's p-value."""
+def compare_with_original(finals: np.ndarray, cpu: float, original: tuple | None) -> str:
+    """Table cells: the original's final score, acl3d minus original, Welch's p-value, the
+    original's CPU per 1000 episodes and acl3d's CPU over it (both measured in this run)."""
     if original is None:
-        return " – | – | – |"
+        return " – | – | – | – | – |"
+    original, original_cpu = original
     diff = finals.mean() - original.mean()
     with warnings.catch_warnings():  # identical samples (e.g. all 0): p is nan, said as such
         warnings.simplefilter("ignore", RuntimeWarning)
         p = ttest_ind(finals, original, equal_var=False).pvalue if len(finals) > 1 else np.nan
-    return f" {original.mean():.1f} ± {original.std():.1f} | {diff:+.1f} | {p:.2f} |"
+    cpu_cells = f" {original_cpu:.3f} | {cpu / original_cpu:.2f} |" if original_cpu else " – | – |"
+    return f" {original.mean():.1f} ± {original.std():.1f} | {diff:+.1f} | {p:.2f} |" + cpu_cells
 
 
 def _names(text: str, valid, what: str, parser) -> list[str]:
@@ -160,12 +163,16 @@ def main(argv=None) -> int:
     standard = args.nb_dims == 2 and args.ratio == 3.0 and args.episodes == 20000
 
     head = " | ".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in checkpoints)
-    ref_head = f" original {head.split(' | ')[-1]} | diff | p (Welch) |" if args.reference else ""
+    ref_head = (
+        f" original {head.split(' | ')[-1]} | diff | p (Welch) | original CPU | CPU ratio (same run) |"
+        if args.reference
+        else ""
+    )
     rows = [
         f"| variant | teacher | preset | {head} | tDRL 20k | score ratio | CPU s/1000 ep | tDRL CPU | CPU ratio |{ref_head}",
-        "|" + "---|" * (len(checkpoints) + 8 + 3 * args.reference),
+        "|" + "---|" * (len(checkpoints) + 8 + 5 * args.reference),
     ]
-    originals: dict[tuple, np.ndarray] = {}  # (variant, teacher) -> final scores per seed
+    originals: dict[tuple, tuple] = {}  # (variant, teacher) -> (final scores per seed, CPU)
     done: dict[tuple, tuple] = {}  # a teacher the presets configure alike runs once
     for variant in variants:
         for preset in presets:
@@ -196,20 +203,22 @@ def main(argv=None) -> int:
                     )
                 mean, std, cpu, finals = done[key]
                 if args.reference and name in REFERENCES and (variant, name) not in originals:
-                    originals[variant, name] = np.asarray(
-                        [
-                            bench_one(
-                                name,
-                                None,
-                                variant,
-                                seed,
-                                args.episodes,
-                                checkpoints,
-                                args.nb_dims,
-                                args.ratio,
-                            )[0][-1]
-                            for seed in range(args.seeds)
-                        ]
+                    runs = [
+                        bench_one(
+                            name,
+                            None,
+                            variant,
+                            seed,
+                            args.episodes,
+                            checkpoints,
+                            args.nb_dims,
+                            args.ratio,
+                        )
+                        for seed in range(args.seeds)
+                    ]
+                    originals[variant, name] = (
+                        np.asarray([r[0][-1] for r in runs]),
+                        float(np.mean([r[1] for r in runs])) if name in CPU_COMPARABLE else None,
                     )
                     print(f"done {variant} {name} (original)", file=sys.stderr, flush=True)
                 ref_s = REF_SCORE_20K.get(variant, {}).get(name) if standard else None
@@ -219,7 +228,7 @@ def main(argv=None) -> int:
                 cpu_ratio = f"{cpu / ref_c:.2f}" if ref_c else "–"
                 row = f"| {variant} | {name} | {preset} | {cells} | {ref_s if ref_s is not None else '–'} | {score_ratio} | {cpu:.3f} | {ref_c if ref_c is not None else '–'} | {cpu_ratio} |"
                 if args.reference:
-                    row += compare_with_original(finals, originals.get((variant, name)))
+                    row += compare_with_original(finals, cpu, originals.get((variant, name)))
                 rows.append(row)
     print(
         f"\n{args.seeds} seeds, {args.episodes} episodes, {args.nb_dims} relevant dims, 10 cubes/dim,"
