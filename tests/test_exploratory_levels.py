@@ -1,5 +1,5 @@
 """Robust PLR's "no policy update on new levels": the transitions of exploratory episodes (new or
-edited levels) are left out of PPO's update, on real training runs."""
+edited levels) are left out of the student's updates (PPO and SAC), on real training runs."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 from stable_baselines3 import PPO
-from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from test_resume import STEPS, assert_same_run
 
@@ -18,7 +18,11 @@ from acl3d.cli import main
 from acl3d.teachers.base import load_state
 from acl3d.teachers.controller import TeacherController
 from acl3d.training import students, train
-from acl3d.training.exclusion import ExcludingPPO, ExcludingRolloutBuffer
+from acl3d.training.exclusion import (
+    ExcludingPPO,
+    ExcludingReplayBuffer,
+    ExcludingRolloutBuffer,
+)
 from acl3d.training.run_dir import RunDir
 
 # 2 envs, 60-step episodes, 256-step rollouts; an 8-level buffer replays from its 4th level on.
@@ -42,6 +46,12 @@ RUN = {
 }
 
 
+SAC = {
+    "student": "sac",
+    "student_params": {"learning_starts": 100, "batch_size": 64, "buffer_size": 4096},
+}
+
+
 class StepRecorder(BaseCallback):
     """Every step's exclusion flags and dones (runs after the run's own callbacks), the kept
     count of every rollout, and the policy weights at the start."""
@@ -55,13 +65,15 @@ class StepRecorder(BaseCallback):
         self.initial = {k: v.clone() for k, v in self.model.policy.state_dict().items()}
 
     def _on_step(self) -> bool:
-        buffer = self.model.rollout_buffer
+        model = self.model
+        buffer = model.rollout_buffer if hasattr(model, "rollout_buffer") else model.replay_buffer
         self.excluded.append(buffer.excluded[buffer.pos].copy())
         self.dones.append(np.asarray(self.locals["dones"]).copy())
         return True
 
     def _on_rollout_end(self) -> None:
-        self.kept.append(self.model.rollout_buffer.kept)
+        if hasattr(self.model, "rollout_buffer"):
+            self.kept.append(self.model.rollout_buffer.kept)
 
 
 def episodes_from_steps(excluded, dones) -> list[tuple[bool, int]]:
@@ -80,10 +92,16 @@ def episodes_from_steps(excluded, dones) -> list[tuple[bool, int]]:
     return out
 
 
-@pytest.mark.parametrize("vec_env", ["batched", "dummy"])  # tasks pulled at reset / queued ahead
-def test_excluded_transitions_are_those_of_the_teachers_exploratory_episodes(vec_env, tmp_path):
+# tasks pulled at reset (batched) or queued ahead (dummy); PPO's rollout / SAC's replay buffer
+@pytest.mark.parametrize(
+    "vec_env, student", [("batched", "ppo"), ("dummy", "ppo"), ("dummy", "sac")]
+)
+def test_excluded_transitions_are_those_of_the_teachers_exploratory_episodes(
+    vec_env, student, tmp_path
+):
     rec = StepRecorder()
-    train(RUN, vec_env=vec_env, out=str(tmp_path / "run"), callbacks=[rec])
+    changes = SAC if student == "sac" else {}
+    train({**RUN, **changes}, vec_env=vec_env, out=str(tmp_path / "run"), callbacks=[rec])
     dump = load_state(tmp_path / "run" / "teacher")
     marked = list(dump["teacher_bk"]["exploratory"])
     assert 0 < sum(marked) < len(marked)  # both kinds were played
@@ -91,16 +109,24 @@ def test_excluded_transitions_are_those_of_the_teachers_exploratory_episodes(vec
     assert [flag for flag, _ in finished] == marked
     assert [length for _, length in finished] == list(dump["train_lengths"])
     total = sum(int(np.count_nonzero(f)) for f in rec.excluded)
-    assert sum(rec.kept) == STEPS - total
+    if student == "ppo":
+        assert sum(rec.kept) == STEPS - total
+    else:  # the replay buffer still holds every transition with its flag
+        buffer = rec.model.replay_buffer
+        np.testing.assert_array_equal(buffer.excluded[: buffer.pos], np.array(rec.excluded))
+        assert buffer.kept == STEPS - total
     assert RunDir(tmp_path / "run").read_section("resolved")["exclude_exploratory"] is True
 
 
-def test_a_rollout_of_new_levels_only_updates_nothing(tmp_path):
-    """With no replay every level is new: every rollout is excluded, and PPO never moves."""
+@pytest.mark.parametrize("student", ["ppo", "sac"])
+def test_new_levels_only_update_nothing(student, tmp_path):
+    """With no replay every level is new: everything is excluded, and the student never moves."""
     rec = StepRecorder()
     params = {"buffer_size": 8, "replay_prob": 0.0}
-    train(RUN, teacher_params=params, steps=512, out=str(tmp_path / "run"), callbacks=[rec])
-    assert rec.kept == [0, 0]
+    config = {**RUN, **(SAC if student == "sac" else {}), "teacher_params": params, "steps": 512}
+    train(config, out=str(tmp_path / "run"), callbacks=[rec])
+    assert rec.kept == ([0, 0] if student == "ppo" else [])
+    assert all(flags.all() for flags in rec.excluded)
     final = rec.model.policy.state_dict()
     for key, value in rec.initial.items():
         assert torch.equal(value, final[key]), key
@@ -139,6 +165,30 @@ def test_the_buffer_yields_every_kept_transition_once_and_no_other():
     assert buffer.kept == n_steps * n_envs
 
 
+def test_the_replay_buffer_samples_kept_transitions_only_and_sb3s_when_none_excluded():
+    space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+    buffers = [cls(120, space, gym.spaces.Box(-1, 1, (1,)), n_envs=3)  # 40 steps
+               for cls in (ExcludingReplayBuffer, ExcludingReplayBuffer, ReplayBuffer)]  # fmt: skip
+    excluded = np.random.default_rng(1).random((40, 3)) < 0.7
+    for t in range(40):
+        obs = np.array([[3 * t + i] for i in range(3)], np.float32)
+        buffers[0].excluded[t] = excluded[t]
+        for b in buffers:
+            b.add(obs, obs, np.zeros((3, 1)), np.zeros(3), np.zeros(3), [{}] * 3)
+    assert buffers[0].kept == np.count_nonzero(~excluded)
+    np.random.seed(0)
+    seen = buffers[0].sample(4000).observations.numpy().reshape(-1).astype(int)
+    assert set(seen) == set(np.flatnonzero(~excluded.reshape(-1)))  # every kept one, no other
+    draws = []
+    for b in buffers[1:]:  # nothing excluded: SB3's own samples
+        np.random.seed(0)
+        draws.append(b.sample(50).observations.numpy())
+    np.testing.assert_array_equal(*draws)
+    buffers[0].excluded[:] = True
+    with pytest.raises(ValueError, match="no kept transition"):
+        buffers[0].sample(4)
+
+
 def test_the_buffer_excluding_nothing_is_sb3s():
     n_steps, n_envs = 8, 2
     plain = filled_buffer(n_steps, n_envs, np.zeros((n_steps, n_envs), bool))
@@ -175,7 +225,14 @@ def test_ppo_with_nothing_excluded_is_sb3s_ppo():
         ({"exclude_exploratory": "yes"}, "exclude_exploratory='yes'; valid"),
         ({"exclude_exploratory": 1}, "exclude_exploratory=1; valid"),
         ({"exclude_exploratory": True, "teacher": "alp-gmm"}, "marks no exploratory levels"),
-        ({"exclude_exploratory": True, "student": "sac"}, "student 'sac' learns from a replay"),
+        (
+            {
+                "exclude_exploratory": True,
+                "student": "sac",
+                "student_params": {"optimize_memory_usage": True},
+            },
+            "optimize_memory_usage=True",
+        ),  # fmt: skip
     ],
 )
 def test_bad_settings_are_refused_before_the_run_starts(changes, message, tmp_path):
@@ -192,12 +249,14 @@ def test_cli_option(tmp_path, capsys):
         main(["train", "--exclude-exploratory", "maybe", "--out", str(tmp_path / "b")])
 
 
-def test_resume_is_exact_with_exclusions(tmp_path):
-    """A run stopped at a checkpoint and resumed (queued tasks' flags included, dummy vec env)
-    ends bit for bit as the run that never stopped."""
+@pytest.mark.parametrize("student", ["ppo", "sac"])
+def test_resume_is_exact_with_exclusions(student, tmp_path):
+    """A run stopped at a checkpoint and resumed (queued tasks' flags and SAC's stored flags
+    included, dummy vec env) ends bit for bit as the run that never stopped."""
     whole, parts = tmp_path / "whole", tmp_path / "parts"
-    train(RUN, vec_env="dummy", out=str(whole))
-    train(RUN, vec_env="dummy", steps=STEPS // 2, out=str(parts))
+    config = {**RUN, **(SAC if student == "sac" else {}), "vec_env": "dummy"}
+    train(config, out=str(whole))
+    train(config, steps=STEPS // 2, out=str(parts))
     train(resume=parts, steps=STEPS, progress_bar=False)
     assert_same_run(whole, parts)
 

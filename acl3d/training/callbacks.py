@@ -4,7 +4,7 @@
 * `StudentResetCallback` re-initialise the student every N steps (the forgetting-student profile)
 * `EvaluationCallback`   test-set evaluation -> evals.csv, evals_tasks.csv, TensorBoard eval/*
 * `CheckpointCallback`   a complete, resumable checkpoint
-* `ExclusionCallback`    marks exploratory episodes' transitions so PPO's update leaves them out
+* `ExclusionCallback`    marks exploratory episodes' transitions so the updates leave them out
 
 Periodic work happens at rollout starts, i.e. right after a training update, where SB3's state
 is complete and a checkpoint resumes bit for bit; evaluation and checkpoint also run once at the
@@ -207,22 +207,25 @@ class CheckpointCallback(PeriodicCallback):
 
 
 class ExclusionCallback(BaseCallback):
-    """Robust PLR / ACCEL: at every step, marks in PPO's rollout buffer the transitions that
-    belong to exploratory episodes (before SB3 adds them); logs the excluded fraction of each
-    rollout (`curriculum/excluded_fraction`)."""
+    """Robust PLR / ACCEL: at every step, marks in the student's rollout or replay buffer the
+    transitions that belong to exploratory episodes (before SB3 adds them); logs the excluded
+    share of PPO's rollout / SAC's replay buffer (`curriculum/excluded_fraction`)."""
 
     def __init__(self, session: Session):
         super().__init__()
         self.session = session
 
+    def _buffer(self):
+        model = self.model
+        return model.rollout_buffer if hasattr(model, "rollout_buffer") else model.replay_buffer
+
     def _on_step(self) -> bool:
-        buffer = self.model.rollout_buffer
+        buffer = self._buffer()
         buffer.excluded[buffer.pos] = self.session.curriculum_env.step_exploratory
         return True
 
     def _on_rollout_end(self) -> None:
-        excluded = self.model.rollout_buffer.excluded
-        self.logger.record("curriculum/excluded_fraction", float(excluded.mean()))
+        self.logger.record("curriculum/excluded_fraction", self._buffer().excluded_fraction)
 
 
 def run_callbacks(session: Session, start_step: int) -> list[BaseCallback]:

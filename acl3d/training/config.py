@@ -180,9 +180,6 @@ def validate(config: TrainConfig) -> None:
     excludes_exploratory(config)
 
 
-EXCLUDING_STUDENTS = ("ppo",)  # SAC's replay buffer has no per-transition exclusion (yet)
-
-
 def excludes_exploratory(config: TrainConfig) -> bool:
     """Whether the run leaves the transitions of exploratory episodes (Robust PLR / ACCEL's new
     and edited levels) out of the student's updates; `exclude_exploratory=True` with a teacher
@@ -198,14 +195,15 @@ def excludes_exploratory(config: TrainConfig) -> bool:
             f"exclude_exploratory=True: teacher {config.teacher!r} marks no exploratory levels; "
             f"valid with the teachers {', '.join(marking)}"
         )
-    if value is True and config.student not in EXCLUDING_STUDENTS:
+    # SAC's memory-saving buffer takes each next observation from the next slot: no exclusions
+    able = not (config.student == "sac" and config.student_params.get("optimize_memory_usage"))
+    if value is True and not able:
         raise ValueError(
-            f"exclude_exploratory=True: student {config.student!r} learns from a replay buffer, "
-            f"where excluding transitions is not implemented; valid with: "
-            f"{', '.join(EXCLUDING_STUDENTS)}"
+            "exclude_exploratory=True: not possible with the sac student parameter "
+            "optimize_memory_usage=True; valid: optimize_memory_usage=False"
         )
     if value == "auto":
-        return config.teacher in marking and config.student in EXCLUDING_STUDENTS
+        return config.teacher in marking and able
     return value
 
 

@@ -18,12 +18,18 @@ import torch
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from acl3d.training.exclusion import ExcludingPPO, ExcludingRolloutBuffer
+from acl3d.training.exclusion import (
+    ExcludingPPO,
+    ExcludingReplayBuffer,
+    ExcludingRolloutBuffer,
+    ExcludingSAC,
+)
 
 STUDENTS: tuple[str, ...] = ("sac", "ppo")
 PRESETS: tuple[str, ...] = ("benchmark", "fast")
 
-_ALGOS = {"sac": SAC, "ppo": ExcludingPPO}  # ExcludingPPO is PPO unless transitions are excluded
+# SB3's SAC and PPO, unless their buffer excludes transitions (acl3d.training.exclusion)
+_ALGOS = {"sac": ExcludingSAC, "ppo": ExcludingPPO}
 MANY_ENVS = 16  # from this many envs on, the fast presets use bigger collections
 
 
@@ -158,12 +164,12 @@ def build(
     exclude_exploratory: bool = False,
 ) -> BaseAlgorithm:
     """Instantiate the SB3 model from `hyperparameters(...)` output; `exclude_exploratory`
-    (PPO only) gives it a rollout buffer that leaves marked transitions out of the update."""
+    gives it a rollout / replay buffer that leaves marked transitions out of the updates."""
     kwargs = dict(params)
-    if exclude_exploratory:
-        if student != "ppo":
-            raise ValueError(f"exclude_exploratory=True: not implemented for student {student!r}")
+    if exclude_exploratory and student == "ppo":
         kwargs["rollout_buffer_class"] = ExcludingRolloutBuffer
+    elif exclude_exploratory:
+        kwargs["replay_buffer_class"] = ExcludingReplayBuffer
     policy_kwargs = dict(kwargs.pop("policy_kwargs"))
     act = policy_kwargs.get("activation_fn")
     if isinstance(act, str):
