@@ -53,8 +53,9 @@ SAC = {
 
 
 class StepRecorder(BaseCallback):
-    """Every step's exclusion flags and dones (runs after the run's own callbacks), the kept
-    count of every rollout, and the policy weights at the start."""
+    """Every step's dones, the exclusion flags the student's buffer stored for every step (PPO:
+    at each rollout end; SAC, whose buffer holds the whole run: at the end), the kept count of
+    every PPO rollout, and the policy weights at the start."""
 
     def __init__(self):
         super().__init__()
@@ -65,15 +66,19 @@ class StepRecorder(BaseCallback):
         self.initial = {k: v.clone() for k, v in self.model.policy.state_dict().items()}
 
     def _on_step(self) -> bool:
-        model = self.model
-        buffer = model.rollout_buffer if hasattr(model, "rollout_buffer") else model.replay_buffer
-        self.excluded.append(buffer.excluded[buffer.pos].copy())
         self.dones.append(np.asarray(self.locals["dones"]).copy())
         return True
 
     def _on_rollout_end(self) -> None:
         if hasattr(self.model, "rollout_buffer"):
+            self.excluded.extend(self.model.rollout_buffer.excluded.copy())
             self.kept.append(self.model.rollout_buffer.kept)
+
+    def _on_training_end(self) -> None:
+        if hasattr(self.model, "replay_buffer"):
+            buffer = self.model.replay_buffer
+            assert not buffer.full
+            self.excluded = list(buffer.excluded[: buffer.pos].copy())
 
 
 def episodes_from_steps(excluded, dones) -> list[tuple[bool, int]]:
@@ -112,9 +117,7 @@ def test_excluded_transitions_are_those_of_the_teachers_exploratory_episodes(
     if student == "ppo":
         assert sum(rec.kept) == STEPS - total
     else:  # the replay buffer still holds every transition with its flag
-        buffer = rec.model.replay_buffer
-        np.testing.assert_array_equal(buffer.excluded[: buffer.pos], np.array(rec.excluded))
-        assert buffer.kept == STEPS - total
+        assert rec.model.replay_buffer.kept == STEPS - total
     assert RunDir(tmp_path / "run").read_section("resolved")["exclude_exploratory"] is True
 
 
@@ -144,7 +147,7 @@ def filled_buffer(n_steps: int, n_envs: int, excluded) -> ExcludingRolloutBuffer
     space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
     buffer = ExcludingRolloutBuffer(n_steps, space, gym.spaces.Box(-1, 1, (1,)), n_envs=n_envs)
     for t in range(n_steps):
-        buffer.excluded[buffer.pos] = excluded[t]
+        buffer.exclude_next(excluded[t])
         obs = np.array([[t * n_envs + i] for i in range(n_envs)], np.float32)
         buffer.add(obs, np.zeros((n_envs, 1)), np.zeros(n_envs), np.zeros(n_envs),
                    torch.zeros(n_envs), torch.zeros(n_envs))  # fmt: skip
@@ -172,19 +175,22 @@ def test_the_replay_buffer_samples_kept_transitions_only_and_sb3s_when_none_excl
     excluded = np.random.default_rng(1).random((40, 3)) < 0.7
     for t in range(40):
         obs = np.array([[3 * t + i] for i in range(3)], np.float32)
-        buffers[0].excluded[t] = excluded[t]
+        buffers[0].exclude_next(excluded[t])
         for b in buffers:
             b.add(obs, obs, np.zeros((3, 1)), np.zeros(3), np.zeros(3), [{}] * 3)
     assert buffers[0].kept == np.count_nonzero(~excluded)
     np.random.seed(0)
     seen = buffers[0].sample(4000).observations.numpy().reshape(-1).astype(int)
-    assert set(seen) == set(np.flatnonzero(~excluded.reshape(-1)))  # every kept one, no other
+    kept = np.flatnonzero(~excluded.reshape(-1))
+    assert set(seen) == set(kept)  # every kept one, no other
+    counts = np.bincount(seen)[kept]  # uniform: about 4000 / 36 each
+    assert counts.min() > 0.5 * counts.mean() and counts.max() < 1.5 * counts.mean()
     draws = []
     for b in buffers[1:]:  # nothing excluded: SB3's own samples
         np.random.seed(0)
         draws.append(b.sample(50).observations.numpy())
     np.testing.assert_array_equal(*draws)
-    buffers[0].excluded[:] = True
+    buffers[0].set_excluded(np.ones((40, 3), bool))
     with pytest.raises(ValueError, match="no kept transition"):
         buffers[0].sample(4)
 

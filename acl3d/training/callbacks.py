@@ -220,8 +220,7 @@ class ExclusionCallback(BaseCallback):
         return model.rollout_buffer if hasattr(model, "rollout_buffer") else model.replay_buffer
 
     def _on_step(self) -> bool:
-        buffer = self._buffer()
-        buffer.excluded[buffer.pos] = self.session.curriculum_env.step_exploratory
+        self._buffer().exclude_next(self.session.curriculum_env.step_exploratory)
         return True
 
     def _on_rollout_end(self) -> None:

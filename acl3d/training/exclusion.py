@@ -4,9 +4,9 @@ levels".
 Robust PLR (PLR⊥) and ACCEL train the student only on replayed levels; the episodes of new and
 edited levels serve to score them. In acl3d every env draws its own level per episode and
 episodes run across rollouts, so a collection mixes both kinds: the buffer carries an `excluded`
-flag per (step, env), written during collection from the curriculum's flags (SB3 calls
-`callback.on_step()` right before it adds the step's transitions), and updates use kept
-transitions only.
+flag per (step, env), given during collection from the curriculum's flags by `exclude_next()`
+(SB3 calls `callback.on_step()` right before it adds the step's transitions), and updates use
+kept transitions only.
 
 * PPO: minibatches hold kept transitions only. Excluded transitions still bound the GAE of their
   own episode (advantages never cross an episode boundary) and still update VecNormalize's
@@ -31,14 +31,18 @@ _FLATTENED = ("observations", "actions", "values", "log_probs", "advantages", "r
 class ExcludingRolloutBuffer(RolloutBuffer):
     """A PPO rollout buffer whose `get()` yields only the transitions not marked `excluded`.
 
-    `excluded[pos, env]` is written before the transition at `pos` is added. Minibatches come
-    from the same `np.random.permutation` draw as SB3's, filtered to kept transitions: the global
-    RNG advances exactly as without exclusions, and with none excluded the minibatches are SB3's.
+    Minibatches come from the same `np.random.permutation` draw as SB3's, filtered to kept
+    transitions: the global RNG advances exactly as without exclusions, and with none excluded
+    the minibatches are SB3's.
     """
 
     def reset(self) -> None:
         super().reset()
         self.excluded = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
+
+    def exclude_next(self, flags) -> None:
+        """Which of the transitions the next `add()` stores (one per env) are excluded."""
+        self.excluded[self.pos] = flags
 
     @property
     def kept(self) -> int:
@@ -78,8 +82,8 @@ class ExcludingPPO(PPO):
 class ExcludingReplayBuffer(ReplayBuffer):
     """A SAC replay buffer that never samples the transitions marked `excluded`.
 
-    Samples are SB3's draws (a uniform step, then a uniform env) with excluded pairs drawn again
-    until kept: uniform over the kept transitions, and SB3's own samples when none is excluded.
+    With none excluded, samples are SB3's own draws; otherwise one uniform draw over the kept
+    transitions (counted per stored step, kept up to date as transitions are added).
     """
 
     def __init__(self, *args, **kwargs):
@@ -90,44 +94,62 @@ class ExcludingReplayBuffer(ReplayBuffer):
                 "observation is the next slot's, which may be excluded); valid: False"
             )
         self.excluded = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
+        self._row_kept = np.zeros(self.buffer_size, dtype=np.int64)  # kept transitions per step
+        self._next = np.zeros(self.n_envs, dtype=bool)
 
     def reset(self) -> None:
         super().reset()
         self.excluded[:] = False
+        self._row_kept[:] = 0
 
-    def _filled(self) -> np.ndarray:
-        return self.excluded if self.full else self.excluded[: self.pos]
+    def exclude_next(self, flags) -> None:
+        """Which of the transitions the next `add()` stores (one per env) are excluded."""
+        self._next[:] = flags
+
+    def add(self, *args, **kwargs) -> None:
+        self.excluded[self.pos] = self._next
+        self._row_kept[self.pos] = self.n_envs - np.count_nonzero(self._next)
+        self._next[:] = False
+        super().add(*args, **kwargs)
+
+    def set_excluded(self, excluded) -> None:
+        """The flags of the first stored steps (a restored checkpoint's)."""
+        excluded = np.asarray(excluded, dtype=bool)
+        self.excluded[: len(excluded)] = excluded
+        self._row_kept = self.n_envs - np.count_nonzero(self.excluded, axis=1)
+
+    def _stored(self) -> int:
+        return self.buffer_size if self.full else self.pos
 
     @property
     def kept(self) -> int:
-        """Transitions stored and available to sampling."""
-        filled = self._filled()
-        return int(filled.size - np.count_nonzero(filled))
+        """Stored transitions available to sampling."""
+        return int(self._row_kept[: self._stored()].sum())
 
     @property
     def excluded_fraction(self) -> float:
-        filled = self._filled()
-        return float(np.count_nonzero(filled) / filled.size) if filled.size else 0.0
+        stored = self._stored() * self.n_envs
+        return 1.0 - self.kept / stored if stored else 0.0
 
-    def _get_samples(self, batch_inds: np.ndarray, env=None) -> ReplayBufferSamples:
-        upper = self.buffer_size if self.full else self.pos
-        batch_inds = np.array(batch_inds)
-        env_inds = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
-        redraw = self.excluded[batch_inds, env_inds]
-        if redraw.all() and self.kept == 0:
+    def sample(self, batch_size: int, env=None) -> ReplayBufferSamples:
+        row_kept = self._row_kept[: self._stored()]
+        total = int(row_kept.sum())
+        if total == len(row_kept) * self.n_envs:
+            return super().sample(batch_size, env=env)
+        if total == 0:
             raise ValueError("the replay buffer holds no kept transition to sample")
-        while redraw.any():
-            n = int(np.count_nonzero(redraw))
-            batch_inds[redraw] = np.random.randint(0, upper, size=n)
-            env_inds[redraw] = np.random.randint(0, high=self.n_envs, size=n)
-            redraw = self.excluded[batch_inds, env_inds]
-        done = self.dones[batch_inds, env_inds] * (1 - self.timeouts[batch_inds, env_inds])
+        ends = np.cumsum(row_kept)
+        draw = np.random.randint(0, total, size=batch_size)
+        rows = np.searchsorted(ends, draw, side="right")
+        rank = draw - (ends[rows] - row_kept[rows])  # the rank-th kept env of that step
+        cols = np.argmax(np.cumsum(~self.excluded[rows], axis=1) > rank[:, None], axis=1)
+        done = self.dones[rows, cols] * (1 - self.timeouts[rows, cols])
         data = (
-            self._normalize_obs(self.observations[batch_inds, env_inds, :], env),
-            self.actions[batch_inds, env_inds, :],
-            self._normalize_obs(self.next_observations[batch_inds, env_inds, :], env),
+            self._normalize_obs(self.observations[rows, cols, :], env),
+            self.actions[rows, cols, :],
+            self._normalize_obs(self.next_observations[rows, cols, :], env),
             done.reshape(-1, 1),
-            self._normalize_reward(self.rewards[batch_inds, env_inds].reshape(-1, 1), env),
+            self._normalize_reward(self.rewards[rows, cols].reshape(-1, 1), env),
         )
         return ReplayBufferSamples(*tuple(map(self.to_torch, data)))
 

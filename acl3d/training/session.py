@@ -160,7 +160,7 @@ class Session:
             ckpt.load_replay_buffer(model.replay_buffer, folder / "replay_buffer.npz")
             excluded = runtime.get("replay_excluded")
             if excluded is not None:
-                model.replay_buffer.excluded[: len(excluded)] = excluded
+                model.replay_buffer.set_excluded(excluded)
         self.controller.load_state_dict(load_state(folder / "controller"))
         self.curriculum_env.set_state(runtime["envs"])
         ckpt.set_algorithm_state(model, runtime["algorithm"])
