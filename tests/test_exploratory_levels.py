@@ -14,6 +14,7 @@ from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from test_resume import STEPS, assert_same_run
 
+from acl3d.campaign.spec import check_options, parse_set
 from acl3d.cli import main
 from acl3d.teachers.base import load_state
 from acl3d.teachers.controller import TeacherController
@@ -253,6 +254,9 @@ def test_cli_option(tmp_path, capsys):
     assert "marks no exploratory levels" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["train", "--exclude-exploratory", "maybe", "--out", str(tmp_path / "b")])
+    # campaign specs take it as a training option (YAML's off is False)
+    assert parse_set(["exclude_exploratory=off"]) == {"exclude_exploratory": False}
+    check_options({"exclude_exploratory": "auto", "teacher": "accel"}, "spec")
 
 
 @pytest.mark.parametrize("student", ["ppo", "sac"])

@@ -77,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--exclude-exploratory",
         choices=tuple(_EXCLUDE_EXPLORATORY),
         help="leave Robust PLR / ACCEL's new and edited levels out of the student's updates "
-        "(default auto: on for robust-plr and accel with ppo)",
+        "(default auto: on with robust-plr and accel)",
     )
     g.add_argument(
         "--env-kwarg",

@@ -12,12 +12,12 @@ from a small queue that the main process keeps filled (Syllabus' pattern):
   never waits for the teacher; it hands every finished episode to the teacher exactly once.
 
 With one task of prefetch, the teacher learns the outcome of a worker's episode k before it
-samples that worker's task k + 2.
+samples that worker's task k + 2. Errors raised inside a worker env are caught and carried back
+with their traceback, so a crash stops training with a readable message on both vec env types.
 
 Exploratory levels (Robust PLR / ACCEL's new or edited ones, on which the student must not
 learn) are flagged when their task is sampled; the flag follows the task through the queue and
-`step_exploratory` tells, for each stepped transition, whether its episode is exploratory. Errors raised inside a worker env are caught and carried back
-with their traceback, so a crash stops training with a readable message on both vec env types.
+`step_exploratory` tells, for each stepped transition, whether its episode is exploratory.
 """
 
 from __future__ import annotations

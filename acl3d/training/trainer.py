@@ -95,10 +95,13 @@ def train(
             "exclude_exploratory": session.exclude_exploratory,
         },
     }
-    if session.exclude_exploratory and config.verbose:
+    if session.controller.marks_exploratory and config.verbose:
+        how = (
+            "excluded from" if session.exclude_exploratory else "kept in (exclude_exploratory off)"
+        )
         print(
             f"[acl3d] {config.teacher}: the episodes of exploratory (new or edited) levels are "
-            f"excluded from {config.student.upper()}'s updates (Robust PLR's PLR⊥)",
+            f"{how} {config.student.upper()}'s updates",
             file=sys.stderr,
             flush=True,
         )
