@@ -22,8 +22,9 @@ given (DCD's ACCEL starts from easy levels), else uniform.
 Robust PLR trains the student only on replayed levels. The teacher marks every proposed task as
 exploratory (new or edited level) or not (`is_exploratory(task)`, and the "exploratory" book-
 keeping); acl3d's training asks right after sampling and leaves those episodes' transitions out
-of the student's gradient updates (`acl3d.training.masked_updates`), so the student learns on
-replayed levels only.
+of the student's gradient updates (`exclude_exploratory`, `acl3d.training.exclusion`), so the
+student learns on replayed levels only. A reported task is matched to its proposal within 1e-5
+of each range (a shuffled task comes back through float32 slightly off).
 
 Avoided bugs of public implementations: levels are only replaced by higher-scoring ones
 (minimax#6/#7 replaced them with random levels after one episode), rank weights never divide by
