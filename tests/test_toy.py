@@ -180,13 +180,15 @@ def test_gif_of_a_one_dimensional_teacher(tmp_path):
 
 
 def test_bench_script_quick_run(capsys, monkeypatch):
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))  # as when the script runs from a shell
     monkeypatch.setattr(
         sys,
         "argv",
         [
             "bench_teachers.py",
+            "--reference",
             "--seeds",
-            "1",
+            "2",
             "--episodes",
             "1000",
             "--teachers",
@@ -203,3 +205,9 @@ def test_bench_script_quick_run(capsys, monkeypatch):
     out = capsys.readouterr().out
     assert "| plain | riac | teachdeeprl |" in out and "| plain | random | teachdeeprl |" in out
     assert "| unfeasible | riac | teachdeeprl |" in out
+    # the original RIAC ran on the same variants and seeds: its score, diff and p-value cells
+    riac_row = next(line for line in out.splitlines() if line.startswith("| plain | riac |"))
+    cells = [c.strip() for c in riac_row.strip("|").split("|")]
+    assert "±" in cells[-5] and cells[-4].startswith(("+", "-"))
+    random_row = next(line for line in out.splitlines() if line.startswith("| plain | random |"))
+    assert random_row.rstrip().endswith("| – | – | – | – | – |")  # no original to compare with
