@@ -106,6 +106,14 @@ def effective_params(name: str, preset: str) -> dict:
     return params | preset_params(preset, name)
 
 
+def run_seeds(name: str, preset: str | None, variant: str, checkpoints, args) -> list[tuple]:
+    """`bench_one` for every seed of the command line."""
+    return [
+        bench_one(name, preset, variant, seed, args.episodes, checkpoints, args.nb_dims, args.ratio)
+        for seed in range(args.seeds)
+    ]
+
+
 def compare_with_original(finals: np.ndarray, cpu: float, original: tuple | None) -> str:
     """Table cells: the original's final score, acl3d minus original, Welch's p-value, the
     original's CPU per 1000 episodes and acl3d's CPU over it (both measured in this run)."""
@@ -180,19 +188,7 @@ def main(argv=None) -> int:
                 key = (variant, name, repr(sorted(effective_params(name, preset).items())))
                 if key not in done:
                     t0 = time.time()
-                    runs = [
-                        bench_one(
-                            name,
-                            preset,
-                            variant,
-                            seed,
-                            args.episodes,
-                            checkpoints,
-                            args.nb_dims,
-                            args.ratio,
-                        )
-                        for seed in range(args.seeds)
-                    ]
+                    runs = run_seeds(name, preset, variant, checkpoints, args)
                     scores = np.asarray([r[0] for r in runs])
                     cpu = float(np.mean([r[1] for r in runs]))
                     done[key] = (scores.mean(axis=0), scores.std(axis=0), cpu, scores[:, -1])
@@ -203,19 +199,7 @@ def main(argv=None) -> int:
                     )
                 mean, std, cpu, finals = done[key]
                 if args.reference and name in REFERENCES and (variant, name) not in originals:
-                    runs = [
-                        bench_one(
-                            name,
-                            None,
-                            variant,
-                            seed,
-                            args.episodes,
-                            checkpoints,
-                            args.nb_dims,
-                            args.ratio,
-                        )
-                        for seed in range(args.seeds)
-                    ]
+                    runs = run_seeds(name, None, variant, checkpoints, args)
                     originals[variant, name] = (
                         np.asarray([r[0][-1] for r in runs]),
                         float(np.mean([r[1] for r in runs])) if name in CPU_COMPARABLE else None,
