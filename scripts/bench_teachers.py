@@ -39,6 +39,7 @@ import warnings
 import numpy as np
 from reference_teachers import CPU_COMPARABLE, REFERENCES, make_reference
 from scipy.stats import ttest_ind
+from threadpoolctl import threadpool_limits
 
 from acl3d.teachers import TEACHERS, make, teacher_class
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
@@ -224,4 +225,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # one BLAS/OpenMP thread: teachers' small matrix products gain nothing from more, and
+    # process time would count idle spinning threads (sklearn's fits in the originals)
+    with threadpool_limits(1):
+        sys.exit(main())
