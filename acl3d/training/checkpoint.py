@@ -117,11 +117,13 @@ def observation_normalizer(model_path):
 
 
 def save_replay_buffer(buffer: ReplayBuffer, path) -> None:
-    """The filled part of an SB3 replay buffer as NPZ (plus its write position)."""
+    """The filled part of an SB3 replay buffer as NPZ (plus its write position, and the
+    `excluded` flags of an `acl3d.training.exclusion.ExcludingReplayBuffer`)."""
     end = buffer.buffer_size if buffer.full else buffer.pos
+    names = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
     arrays = {
         name: getattr(buffer, name)[:end]
-        for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+        for name in (*names, "excluded")
         if getattr(buffer, name, None) is not None
     }
     np.savez(Path(path), pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
@@ -135,7 +137,9 @@ def load_replay_buffer(buffer: ReplayBuffer, path) -> None:
                 f"replay buffer file {path} holds {end} transitions; buffer_size is {buffer.buffer_size}"
             )
         for name in data.files:
-            if name not in ("pos", "full"):
+            if name == "excluded":
+                buffer.set_excluded(data[name])  # also recounts what sampling may draw
+            elif name not in ("pos", "full"):
                 getattr(buffer, name)[:end] = data[name]
         buffer.pos, buffer.full = int(data["pos"]), bool(data["full"])
 

@@ -158,9 +158,6 @@ class Session:
             ckpt.set_normalization_runtime(self.vecnorm, runtime["vecnormalize"])
         if (folder / "replay_buffer.npz").exists():
             ckpt.load_replay_buffer(model.replay_buffer, folder / "replay_buffer.npz")
-            excluded = runtime.get("replay_excluded")
-            if excluded is not None:
-                model.replay_buffer.set_excluded(excluded)
         self.controller.load_state_dict(load_state(folder / "controller"))
         self.curriculum_env.set_state(runtime["envs"])
         ckpt.set_algorithm_state(model, runtime["algorithm"])
@@ -199,11 +196,7 @@ class Session:
             ckpt.save_normalization(self.vecnorm, folder / "model.zip")
             runtime["vecnormalize"] = ckpt.normalization_runtime(self.vecnorm)
         if hasattr(model, "replay_buffer") and self.config.save_replay_buffer:
-            buffer = model.replay_buffer
-            ckpt.save_replay_buffer(buffer, folder / "replay_buffer.npz")
-            if hasattr(buffer, "excluded"):  # the stored transitions SAC never samples
-                end = buffer.buffer_size if buffer.full else buffer.pos
-                runtime["replay_excluded"] = buffer.excluded[:end]
+            ckpt.save_replay_buffer(model.replay_buffer, folder / "replay_buffer.npz")
         save_state(folder / "runtime", runtime)
         save_state(folder / "controller", self.controller.state_dict())
         save_state(folder / "rng", ckpt.rng_state())
