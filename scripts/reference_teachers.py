@@ -113,15 +113,17 @@ class ReferenceALPGMM(_MixtureReference):
 
     def __init__(self, mins, maxs, seed, fit_rate, random_task_ratio, potential_ks):
         super().__init__(mins, maxs, seed, fit_rate, random_task_ratio, potential_ks)
-        self.tasks = np.zeros((0, self.dim))
+        self.tasks = np.zeros((1024, self.dim))  # the first len(returns) rows: earlier tasks
         self.returns: list[float] = []
 
     def _update(self, task, reward):
-        alp = 0.0
-        if len(self.returns) > 5:
-            nearest = int(((self.tasks - task) ** 2).sum(axis=1).argmin())
+        n, alp = len(self.returns), 0.0
+        if n > 5:  # exact nearest neighbour (the originals: a kd-tree plus a recent buffer)
+            nearest = int(((self.tasks[:n] - task) ** 2).sum(axis=1).argmin())
             alp = abs(reward - self.returns[nearest])
-        self.tasks = np.vstack([self.tasks, task])
+        if n == len(self.tasks):
+            self.tasks = np.concatenate([self.tasks, np.zeros_like(self.tasks)])
+        self.tasks[n] = task
         self.returns.append(reward)
         self.rows.append(np.append(task, alp))
         self._maybe_fit()
