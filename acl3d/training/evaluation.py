@@ -2,14 +2,20 @@
 
 The test tasks are spread over the worker envs of an evaluation VecEnv (each worker plays the
 next unplayed test task at its auto-reset), so evaluation runs in parallel and never touches
-the training envs or the teacher.
+the training envs or the teacher. It draws from its own random streams too (`own_random_streams`),
+so sampled actions leave training's streams as they were: the evaluation schedule never changes
+what is trained, and an evaluation depends only on the policy and the seed.
 """
 
 from __future__ import annotations
 
+import random
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 from stable_baselines3.common.vec_env import VecEnv
 
 from acl3d.training.curriculum import INFO_KEY, SUCCESS_THRESHOLD, raise_worker_errors
@@ -41,6 +47,29 @@ class EvalResult:
         }
 
 
+@contextmanager
+def own_random_streams(seed: int) -> Iterator[None]:
+    """Runs the block on the global random streams (python, numpy, torch's CPU generator and
+    every initialised CUDA device's) seeded with `seed`, then puts the caller's streams back.
+
+    SB3 samples stochastic actions from torch's global generator and shuffles minibatches with
+    numpy's: a block run inside leaves the training that follows it bit for bit unchanged.
+    """
+    py_state, np_state = random.getstate(), np.random.get_state()
+    cuda = list(range(torch.cuda.device_count())) if torch.cuda.is_initialized() else []
+    with torch.random.fork_rng(devices=cuda):
+        random.seed(seed)
+        np.random.seed(seed)
+        torch.default_generator.manual_seed(seed)
+        for device in cuda:
+            torch.cuda.default_generators[device].manual_seed(seed)
+        try:
+            yield
+        finally:
+            random.setstate(py_state)
+            np.random.set_state(np_state)
+
+
 def evaluate(
     predict,
     venv: VecEnv,
@@ -52,7 +81,14 @@ def evaluate(
 
     `predict(obs) -> actions` maps raw observations to actions (normalisation included).
     Workers that run out of test tasks replay the first one and their results are discarded.
+    `seed` seeds the envs and the random streams `predict` draws from (sampled actions), so the
+    same policy and seed give the same result, and the caller's random streams are untouched.
     """
+    with own_random_streams(seed):
+        return _play(predict, venv, tasks, seed, episodes_per_task)
+
+
+def _play(predict, venv: VecEnv, tasks, seed: int, episodes_per_task: int) -> EvalResult:
     tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float32))
     order = np.repeat(np.arange(len(tasks)), episodes_per_task)
     n_total = len(order)
