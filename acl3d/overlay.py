@@ -12,13 +12,16 @@ from functools import lru_cache
 
 import numpy as np
 
+from acl3d.extras import optional_dependency
+
 PADDING = 4
 DIM_256 = 115  # the label box keeps 115/256 (45%) of the picture's brightness behind the text
 
 
 @lru_cache(maxsize=8)
 def _font(size: int):
-    from PIL import ImageFont
+    with optional_dependency("labelled frames"):
+        from PIL import ImageFont
 
     try:
         return ImageFont.load_default(size=size)

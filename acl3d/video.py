@@ -4,10 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import imageio.v2 as imageio
 import numpy as np
 
+from acl3d.extras import optional_dependency
+
 FORMATS = ("mp4", "gif", "png")
+
+
+def _imageio():
+    with optional_dependency("writing videos and PNG strips"):
+        import imageio.v2 as imageio
+    return imageio
 
 
 def output_format(path: str | Path, fmt: str | None = None) -> str:
@@ -32,6 +39,7 @@ def video_writer(path: str | Path, fps: int, fmt: str | None = None):
     fmt = output_format(path, fmt)
     if fmt == "png":
         raise ValueError(f"{str(path)!r}: a PNG strip is not a video; use open_sink()")
+    imageio = _imageio()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     if fmt == "mp4":
         return imageio.get_writer(
@@ -100,7 +108,7 @@ class StripSink:
         if not self._rows:
             raise ValueError(f"no frames to write to {str(self.path)!r}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        imageio.imwrite(self.path, np.concatenate(self._rows, axis=0), format="PNG")
+        _imageio().imwrite(self.path, np.concatenate(self._rows, axis=0), format="PNG")
 
 
 def open_sink(path, fps: int, fmt: str | None = None, strip_frames: int = 6):

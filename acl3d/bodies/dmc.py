@@ -23,19 +23,22 @@ import mujoco
 import numpy as np
 
 from acl3d.bodies.base import Body, Motor
+from acl3d.extras import optional_dependency
 
 SERVO_GAIN = 200.0  # joint-space servo damping, N.m per rad/s, as the other bodies' velocity servos
 CLEARANCE = 0.02
 
 
 def _ant():
-    from dm_control.locomotion.walkers import ant
+    with optional_dependency("body 'dmc:ant'"):
+        from dm_control.locomotion.walkers import ant
 
     return ant.Ant()
 
 
 def _cmu_humanoid():
-    from dm_control.locomotion.walkers import cmu_humanoid
+    with optional_dependency("body 'dmc:cmu_humanoid'"):
+        from dm_control.locomotion.walkers import cmu_humanoid
 
     return cmu_humanoid.CMUHumanoidPositionControlledV2020()
 

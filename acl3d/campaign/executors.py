@@ -14,6 +14,8 @@ import signal
 import sys
 from dataclasses import dataclass
 
+from acl3d.extras import optional_dependency
+
 EXECUTORS = ("ray", "local")
 _SHUTDOWN_GRACE_S = 30.0
 
@@ -127,7 +129,8 @@ class RayExecutor:
     """One Ray task per attempt, declaring `cpus` CPUs; a local Ray instance unless `address`."""
 
     def __init__(self, max_parallel: int | None, cpus: int, address: str | None):
-        import ray
+        with optional_dependency("the ray executor"):
+            import ray
 
         self._ray = ray
         self._owns = not ray.is_initialized()

@@ -6,6 +6,8 @@ import argparse
 import importlib
 import sys
 
+from acl3d.extras import MissingExtraError, optional_dependency
+
 # subcommand -> (module, one-line help). Modules are imported only when their command runs.
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("acl3d.cli.train", "train a student with a teacher's curriculum on a track"),
@@ -48,7 +50,11 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_missing", False):
         parser.error(f"command {args.command!r} is not available in this build")
     try:
-        return int(importlib.import_module(args._module).run(args) or 0)
+        with optional_dependency(f"acl3d {args.command}"):
+            return int(importlib.import_module(args._module).run(args) or 0)
+    except MissingExtraError as exc:  # an install without the extra: say which one
+        print(f"acl3d {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except ValueError as exc:  # bad user input: one clear line, no traceback
         print(f"acl3d {args.command}: error: {exc}", file=sys.stderr)
         return 2

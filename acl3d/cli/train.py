@@ -127,6 +127,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="hide the progress bar",
     )
     g.add_argument(
+        "--no-tensorboard",
+        dest="tensorboard",
+        action="store_false",
+        default=None,
+        help="write no TensorBoard logs (RUN/tb); the CSV logs are written either way",
+    )
+    g.add_argument(
         "--no-replay-buffer-save",
         dest="save_replay_buffer",
         action="store_false",
@@ -216,7 +223,7 @@ def options_from_args(args) -> dict:
         "expert_knowledge", "reset_student_every", "buffer_size", "eval_every", "eval_envs",
         "test_set", "nb_test_episodes", "checkpoint_every", "periodical_samples_every", "vec_env",
         "envs_per_worker", "start_method", "torch_threads", "device", "progress_bar",
-        "save_replay_buffer", "verbose",
+        "save_replay_buffer", "tensorboard", "verbose",
         *_FLAGS,
     )  # fmt: skip
     for name in simple:

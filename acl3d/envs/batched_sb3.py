@@ -21,9 +21,12 @@ import time
 from collections import deque
 
 import numpy as np
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from acl3d.envs.batched import BatchedEnvs
+from acl3d.extras import optional_dependency
+
+with optional_dependency("the batched env's Stable-Baselines3 VecEnv"):
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 INFO_KEY = "curriculum"
 

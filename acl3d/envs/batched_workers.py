@@ -14,7 +14,11 @@ import multiprocessing as mp
 import traceback
 
 import numpy as np
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from acl3d.extras import optional_dependency
+
+with optional_dependency("the batched env's worker processes"):
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 
 class WorkerCrash(RuntimeError):

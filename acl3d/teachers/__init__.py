@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import inspect
 
+from acl3d.extras import optional_dependency
 from acl3d.teachers.base import Teacher, load_state, save_state
 
 # name -> "module:Class"; modules are imported lazily so torch loads only for teachers that need it.
@@ -31,7 +32,8 @@ def teacher_class(name: str) -> type[Teacher]:
     if name not in _REGISTRY:
         raise ValueError(f"unknown teacher {name!r}; valid teachers: {', '.join(TEACHERS)}")
     module, cls = _REGISTRY[name].split(":")
-    return getattr(importlib.import_module(module), cls)
+    with optional_dependency(f"teacher {name!r}"):
+        return getattr(importlib.import_module(module), cls)
 
 
 def make(name: str, task_space, seed: int | None = None, **params) -> Teacher:

@@ -8,6 +8,8 @@ parser imports it without torch and SB3).
 
 import importlib
 
+from acl3d.extras import optional_dependency
+
 _EXPORTS = {"TrainConfig": "config", "TrainResult": "trainer", "train": "trainer"}
 __all__ = list(_EXPORTS)
 
@@ -15,4 +17,5 @@ __all__ = list(_EXPORTS)
 def __getattr__(name: str):
     if name not in _EXPORTS:
         raise AttributeError(f"module 'acl3d.training' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"acl3d.training.{_EXPORTS[name]}"), name)
+    with optional_dependency(f"acl3d.training.{name}"):
+        return getattr(importlib.import_module(f"acl3d.training.{_EXPORTS[name]}"), name)

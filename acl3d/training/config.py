@@ -63,6 +63,7 @@ class TrainConfig:
     start_method: str = "forkserver"
     torch_threads: int = 1
     progress_bar: bool = True
+    tensorboard: bool = True  # TensorBoard event files under RUN/tb (the CSVs are always written)
     device: str = "cpu"
     verbose: int = 1
 
@@ -131,6 +132,7 @@ _FLAGS = (
     "eval_stochastic",
     "save_replay_buffer",
     "progress_bar",
+    "tensorboard",
 )
 _TEXTS = ("env", "body", "teacher", "student", "preset", "device")
 _MAPPINGS = ("bounds", "teacher_params", "student_params", "env_kwargs")

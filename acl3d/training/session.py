@@ -135,7 +135,7 @@ class Session:
                 self.params,
                 self.train_env,
                 c.seed,
-                str(self.run.tb),
+                self.tensorboard_dir(),
                 c.device,
                 exclude_exploratory=self.exclude_exploratory,
             )
@@ -146,12 +146,15 @@ class Session:
                 students.value_estimator(self.model, self.normalize_obs())
             )
 
+    def tensorboard_dir(self) -> str | None:
+        return str(self.run.tb) if self.config.tensorboard else None
+
     def _restore(self, folder: Path) -> None:
         c = self.config
         model = self.model = students.load(
             c.student, folder / "model.zip", env=self.train_env, device=c.device
         )
-        model.tensorboard_log = str(self.run.tb)
+        model.tensorboard_log = self.tensorboard_dir()
         runtime = load_state(folder / "runtime")
         if self.vecnorm is not None:
             ckpt.load_normalization_into(self.vecnorm, folder / "model.zip")

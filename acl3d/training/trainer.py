@@ -36,6 +36,7 @@ from acl3d.training.session import Session
 # processes get theirs pushed one episode ahead, so the teacher sees a different order.
 RESUME_MAY_CHANGE = (
     "steps", "progress_bar", "verbose", "start_method", "torch_threads", "eval_envs",
+    "tensorboard",
 )  # fmt: skip
 
 
