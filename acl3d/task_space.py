@@ -10,8 +10,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from gymnasium import spaces
 
 from acl3d import validation
+
+# Tasks travel as float32 vectors (what teachers propose and environments report).
+TASK_DTYPE = np.float32
 
 
 @dataclass(frozen=True)
@@ -103,14 +107,37 @@ class TaskSpace:
         return cls(tuple(params))
 
     @classmethod
+    def from_gym(cls, space: spaces.Box, names: Sequence[str] | None = None) -> TaskSpace:
+        """Build from a 1-d `gymnasium.spaces.Box` with finite bounds; `names` label its
+        dimensions (default "x0", "x1", ...)."""
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise validation.fail("task_space", space, "a 1-d gymnasium.spaces.Box")
+        if not (np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))):
+            raise validation.fail("task_space", space, "a Box with finite bounds")
+        dim = space.shape[0]
+        names = [f"x{i}" for i in range(dim)] if names is None else list(names)
+        if len(names) != dim or not all(isinstance(n, str) and n for n in names):
+            raise validation.fail("names", names, f"{dim} non-empty strings")
+        return cls(
+            tuple(
+                TaskParameter(n, (float(lo),), (float(hi),))
+                for n, lo, hi in zip(names, space.low, space.high)
+            )
+        )
+
+    @classmethod
     def coerce(cls, space) -> TaskSpace:
-        """Accept a TaskSpace or a TeachMyAgent bounds dict."""
+        """Accept a TaskSpace, a TeachMyAgent bounds dict or a 1-d `gymnasium.spaces.Box`."""
         if isinstance(space, TaskSpace):
             return space
         if isinstance(space, Mapping):
             return cls.from_bounds(space)
+        if isinstance(space, spaces.Box):
+            return cls.from_gym(space)
         raise validation.fail(
-            "task_space", space, "a TaskSpace or a bounds dict {name: [min, max]}"
+            "task_space",
+            space,
+            "a TaskSpace, a bounds dict {name: [min, max]} or a 1-d gymnasium.spaces.Box",
         )
 
     def with_bounds(self, **bounds) -> TaskSpace:
@@ -162,6 +189,14 @@ class TaskSpace:
     @property
     def high(self) -> np.ndarray:
         return np.concatenate([p.high for p in self.parameters]).astype(np.float64)
+
+    @property
+    def gym_space(self) -> spaces.Box:
+        """The bounds as a float32 `gymnasium.spaces.Box` of shape (dim,): what teachers sample
+        in and what `sample_task()` returns (e.g. Syllabus' `BoxTaskSpace(space.gym_space)`)."""
+        return spaces.Box(
+            self.low.astype(TASK_DTYPE), self.high.astype(TASK_DTYPE), dtype=TASK_DTYPE
+        )
 
     def bounds_dict(self) -> dict[str, list]:
         """TeachMyAgent-style bounds (a list of [min, max] pairs per parameter)."""

@@ -18,11 +18,18 @@ PARKOUR_WATER = {
 }  # both bodies wet, the climber grasps
 
 
-def assert_matches_single_envs(env_id, n, threads, steps, seed=11, task=None, limit=None, **kw):
-    """Sub-env i seeded seed + i == a single `gymnasium.make` env seeded seed + i, step by step
-    (same-step autoreset on both sides), on the same tasks and actions."""
+def assert_matches_single_envs(
+    env_id, n, threads, steps, seed=11, task=None, limit=None, mode=AutoresetMode.SAME_STEP, **kw
+):
+    """Sub-env i seeded seed + i == a single `gymnasium.make` env seeded seed + i, step by step,
+    on the same tasks and actions, the single env reset as the vector env's `mode` says."""
     vec = gym.make_vec(
-        env_id, num_envs=n, vectorization_mode="vector_entry_point", threads=threads, **kw
+        env_id,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        threads=threads,
+        autoreset_mode=mode,
+        **kw,
     )
     if limit is not None:
         vec.unwrapped.batch.max_episode_steps = limit
@@ -33,17 +40,23 @@ def assert_matches_single_envs(env_id, n, threads, steps, seed=11, task=None, li
         np.testing.assert_array_equal(obs[i], env.reset(seed=seed + i, options=options)[0])
     rng = np.random.default_rng(0)
     ends = 0
+    ended = [False] * n
     for _ in range(steps):
         actions = rng.uniform(-1.1, 1.1, (n, *vec.single_action_space.shape)).astype(np.float32)
         obs, rewards, terminated, truncated, infos = vec.step(actions)
         for i, env in enumerate(singles):
-            o, r, te, tr, info = env.step(actions[i])
+            if ended[i]:  # NEXT_STEP: this step resets
+                o, info = env.reset()
+                r, te, tr = 0.0, False, False
+            else:
+                o, r, te, tr, info = env.step(actions[i])
             assert (r, te, tr) == (rewards[i], terminated[i], truncated[i])
             assert info["success"] == infos["success"][i]
-            if te or tr:
-                ends += 1
+            ended[i] = mode == AutoresetMode.NEXT_STEP and (te or tr)
+            if (te or tr) and mode == AutoresetMode.SAME_STEP:
                 np.testing.assert_array_equal(o, infos["final_obs"][i])
                 o, _ = env.reset()
+            ends += te or tr
             np.testing.assert_array_equal(o, obs[i])
     vec.close()
     return ends
@@ -55,6 +68,14 @@ def test_stump_tracks_match_single_envs(threads):
     assert assert_matches_single_envs("acl3d/StumpTracks-v0", 3, threads, 150, task=task, limit=40)
 
 
+def test_next_step_autoreset_matches_single_envs():
+    task = {"stump_height": 1.5, "obstacle_spacing": 1.0}
+    ends = assert_matches_single_envs(
+        "acl3d/StumpTracks-v0", 3, 2, 120, task=task, limit=30, mode=AutoresetMode.NEXT_STEP
+    )
+    assert ends >= 6
+
+
 def test_free_3d_body_on_hexagon_tracks_matches_single_envs():
     kw = {"body": "spider", "planar": False}
     assert_matches_single_envs("acl3d/HexagonTracks-v0", 3, 3, 60, **kw)
@@ -62,12 +83,14 @@ def test_free_3d_body_on_hexagon_tracks_matches_single_envs():
 
 @pytest.mark.parametrize("body", ["classic_bipedal", "climbing_profile_chimpanzee"])
 def test_parkour_with_water_matches_single_envs(body):
-    assert_matches_single_envs("acl3d/Parkour-v0", 2, 2, 60, task=PARKOUR_WATER, body=body)
+    assert_matches_single_envs(
+        "acl3d/Parkour-v0", 2, 2, 60, task=PARKOUR_WATER, body=body, mode=AutoresetMode.NEXT_STEP
+    )
 
 
-def test_make_vec_declares_same_step_autoreset_and_seeds_per_env():
+def test_make_vec_declares_next_step_autoreset_and_seeds_per_env():
     vec = gym.make_vec("acl3d/StumpTracks-v0", num_envs=3, vectorization_mode="vector_entry_point")
-    assert vec.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     assert vec.observation_space.shape == (3, *vec.single_observation_space.shape)
     a, _ = vec.reset(seed=[4, 5, 6])
     b, _ = vec.reset(seed=4)

@@ -98,7 +98,7 @@ class BatchedEnvs:
         """Reset all: `seed` None, an int s (sub-env i gets s + i) or one seed per sub-env;
         `options` None, one dict for all, or one dict per sub-env. Returns (obs, infos)."""
         seeds = self.seeds(seed)
-        per_env = self._per_env_options(options)
+        per_env = self.per_env_options(options)
         results = [self.reset_one(i, seeds[i], per_env[i]) for i in range(self.num_envs)]
         return np.stack([r[0] for r in results]), [r[1] for r in results]
 
@@ -117,7 +117,7 @@ class BatchedEnvs:
             return [None if s is None else int(s) for s in seed]
         raise ValueError(f"seed={seed!r}; valid: None, an int or a sequence of {n} ints/None")
 
-    def _per_env_options(self, options) -> list:
+    def per_env_options(self, options) -> list:
         n = self.num_envs
         if options is None or isinstance(options, Mapping):
             return [options] * n
