@@ -7,6 +7,7 @@ import importlib
 import sys
 
 from acl3d.extras import MissingExtraError, optional_dependency
+from acl3d.version import __version__
 
 # subcommand -> (module, one-line help). Modules are imported only when their command runs.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="acl3d", description="Automatic curriculum learning on 3D MuJoCo tracks."
     )
+    parser.add_argument("--version", action="version", version=f"acl3d {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
