@@ -19,7 +19,9 @@ import acl3d  # noqa: F401  (registers the ids)
 from acl3d.envs.batched_vector import BatchedVectorEnv
 from acl3d.envs.curriculum_wrapper import CurriculumWrapper
 from acl3d.task_space import TaskSpace
+from acl3d.teachers import Teacher, register
 from acl3d.teachers import make as make_teacher
+from acl3d.teachers.controller import TeacherController
 
 SPACE = TaskSpace.from_bounds({"stump_height": [0.0, 3.0], "obstacle_spacing": [0.0, 6.0]})
 
@@ -188,3 +190,74 @@ def test_bad_gymnasium_task_spaces_raise(space, match):
 def test_bad_vector_env_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         BatchedVectorEnv("stump-tracks", 2, **kwargs)
+
+
+class HalfHeight(Teacher):
+    """A user's teacher: uniform tasks, stump height capped at half its range once the mean
+    return of the last 3 episodes is below 0."""
+
+    name = "test-half-height"
+    uses_initial_dist = False
+
+    def __init__(self, task_space, seed=None, window: int = 3):
+        super().__init__(task_space, seed)
+        self.window, self.returns = window, []
+
+    def _sample(self):
+        task = self.uniform_task()
+        if len(self.returns) >= self.window and np.mean(self.returns[-self.window :]) < 0:
+            task[0] = self.mins[0] + 0.5 * (task[0] - self.mins[0])
+        return task
+
+    def _episodic_update(self, task, reward, is_success):
+        self.returns.append(reward)
+
+    def _extra_state(self):
+        return {"returns": list(self.returns)}
+
+    def _load_extra_state(self, extra):
+        self.returns = [float(r) for r in extra["returns"]]
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    """Registrations made by a test are undone after it."""
+    import acl3d.teachers as teachers
+
+    monkeypatch.setattr(teachers, "_REGISTRY", dict(teachers._REGISTRY))
+
+
+def test_a_users_teacher_is_one_class_and_one_registration(registry):
+    register(HalfHeight)
+    register(HalfHeight)  # idempotent for the same class
+    controller = TeacherController("test-half-height", SPACE, seed=0, expert_knowledge="high")
+    task = controller.sample_task()
+    controller.record_episode(task, -5.0, 10, False)
+    assert controller.teacher.returns == [-5.0] and not controller.marks_exploratory
+    assert make_teacher("test-half-height", SPACE, seed=0, window=2).window == 2
+    by_path = make_teacher("acl3d.teachers.random_teacher:RandomTeacher", SPACE, seed=0)
+    assert by_path.name == "random"
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: register(type("Dup", (HalfHeight,), {})), "already registered"),
+        (lambda: register(dict), "subclass of Teacher"),
+        (lambda: make_teacher("nope:Nothing", SPACE), "cannot import"),
+        (lambda: make_teacher("acl3d.task_space:TaskSpace", SPACE), "not a subclass"),
+        (lambda: make_teacher("random", SPACE).step_update(0, 0, np.nan, 0, True), "reward"),
+        (lambda: make_teacher("random", SPACE).step_update(0, 0, 1.0, 0, True, -1), "stream"),
+    ],
+)
+def test_bad_teacher_registrations_and_calls_raise(registry, call, match):
+    register(HalfHeight)
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_only_teachers_that_declare_it_mark_exploratory_levels():
+    for name, marks in [("random", False), ("alp-gmm", False), ("robust-plr", True)]:
+        teacher = make_teacher(name, SPACE, seed=0)
+        assert teacher.marks_exploratory is marks
+        assert teacher.is_exploratory(teacher.sample_task()) is marks  # PLR: a new level

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
-from acl3d.teachers.base import Teacher
+from acl3d.teachers.base import RunFacts, Teacher
 
 MAX_PENDING = 4096  # boundary-sampled tasks awaiting their return (older ones are forgotten)
 LOW, HIGH = 0, 1
@@ -35,6 +35,14 @@ class ADR(Teacher):
     """Automatic Domain Randomization (defaults: TeachMyAgent benchmark, returns in raw units)."""
 
     name = "adr"
+    uses_initial_dist = True
+    return_params = ("min_reward_thr", "max_reward_thr")
+
+    @classmethod
+    def run_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """The environment's reward thresholds, and its easy-task prior when known."""
+        low, high = facts.profile.adr_reward_thresholds
+        return {"min_reward_thr": low, "max_reward_thr": high, **super().run_params(facts)}
 
     def __init__(
         self,

@@ -110,6 +110,7 @@ class ALPGMM(GMMTeacherBase):
     """Absolute-learning-progress Gaussian mixture teacher (defaults: TeachMyAgent benchmark)."""
 
     name = "alp-gmm"
+    uses_initial_dist = True
 
     def __init__(
         self,

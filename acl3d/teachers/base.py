@@ -12,12 +12,14 @@ import json
 from abc import ABC, abstractmethod
 from collections import defaultdict
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
 from acl3d import validation
+from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
 
 # Sanity limits on what teachers are told: a reported task may lie outside the bounds (float
@@ -33,21 +35,50 @@ def _no_value(states: np.ndarray) -> None:
     return None
 
 
-class Teacher(ABC):
-    """Base class of all teachers.
+@dataclass(frozen=True)
+class RunFacts:
+    """What the training loop knows that a teacher may take as constructor arguments."""
 
-    Subclasses implement `_sample()` and optionally `_episodic_update`, `_step_update`,
-    `_record_initial_state`, `_non_exploratory_sample`, `_extra_state` / `_load_extra_state`.
+    profile: CurriculumProfile = field(default_factory=CurriculumProfile)
+    initial_dist: dict | None = None  # the easy-task prior, given at expert knowledge "high"
+    total_steps: int | None = None  # the run's budget in environment steps
+
+
+class Teacher(ABC):
+    """Base class of all teachers: what a teacher must and may do is declared here, and the
+    training loop reads these declarations (it never inspects a teacher's methods or name).
+
+    Must implement `_sample()`. May implement `_episodic_update`, `_step_update` (called only
+    with "step_rewards" in `needs`), `_record_initial_state` ("initial_states"),
+    `_is_exploratory` (with `marks_exploratory`), `_non_exploratory_sample`,
+    `_extra_state` / `_load_extra_state` (exact resume) and `plot_state`. The public methods
+    check their inputs before calling these, so a bad call changes nothing.
 
     Class attributes:
-      name: registry name (`acl3d.teachers.make(name, ...)`).
+      name: registry name (`acl3d.teachers.make(name, ...)`; `acl3d.teachers.register(cls)`).
       needs: what the teacher consumes beyond episodic returns, among
         {"success", "step_rewards", "initial_states", "value_estimator"}; the training loop uses it
         to wire the right data and to refuse incompatible students early.
+      marks_exploratory: `is_exploratory(task)` may say True for a proposed task (a new or edited
+        level whose episode must not train the student: Robust PLR, ACCEL).
+      uses_initial_dist: the constructor takes `initial_dist` (expert knowledge "high").
+      return_params: constructor parameters in return units, scaled with the returns when the
+        controller scales them (ADR's thresholds).
     """
 
     name: ClassVar[str] = "abstract"
     needs: ClassVar[frozenset[str]] = frozenset()
+    marks_exploratory: ClassVar[bool] = False
+    uses_initial_dist: ClassVar[bool] = False
+    return_params: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def run_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """Constructor arguments this teacher takes from the run: `initial_dist` when it uses
+        one and the run has one. Override to take more (call super())."""
+        if cls.uses_initial_dist and facts.initial_dist is not None:
+            return {"initial_dist": facts.initial_dist}
+        return {}
 
     def __init__(self, task_space, seed: int | None = None):
         self.task_space = TaskSpace.coerce(task_space)
@@ -77,11 +108,19 @@ class Teacher(ABC):
         self._episodic_update(task, reward, is_success)
         self.nb_episodes += 1
 
-    def step_update(self, state, action, reward, next_state, done) -> None:
-        """Per-step hook (only teachers with "step_rewards" in `needs` use it)."""
+    def step_update(self, state, action, reward, next_state, done, stream: int = 0) -> None:
+        """One environment step of the episode running on `stream` (an env index: episodes of
+        several envs interleave). Only teachers with "step_rewards" in `needs` use it."""
+        reward = self._check_scalar("reward", reward)
+        stream = validation.integer("stream", stream, 0)
         if "step_rewards" in self.needs:
-            self._check_scalar("reward", reward)
-            self._step_update(state, action, float(reward), next_state, bool(done))
+            self._step_update(state, action, reward, next_state, bool(done), stream)
+
+    def is_exploratory(self, task) -> bool:
+        """Whether the episode of `task` (proposed, not yet reported) must not train the
+        student; always False unless the teacher `marks_exploratory`."""
+        task = self._check_task(task)
+        return self.marks_exploratory and bool(self._is_exploratory(task))
 
     def record_initial_state(self, task, state) -> None:
         """First observation of the episode that runs `task` (only SPDL uses it)."""
@@ -143,8 +182,13 @@ class Teacher(ABC):
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
         pass
 
-    def _step_update(self, state, action, reward: float, next_state, done: bool) -> None:
+    def _step_update(
+        self, state, action, reward: float, next_state, done: bool, stream: int
+    ) -> None:
         pass
+
+    def _is_exploratory(self, task: np.ndarray) -> bool:
+        return False
 
     def _record_initial_state(self, task: np.ndarray, state: np.ndarray) -> None:
         pass

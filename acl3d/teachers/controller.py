@@ -19,7 +19,6 @@ Differences from TeachMyAgent's controller (why):
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +27,11 @@ import numpy as np
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
-from acl3d.teachers import make
+from acl3d.teachers import make, teacher_class
 from acl3d.teachers import test_sets as test_sets_mod
 from acl3d.teachers.base import load_state, save_state
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
-from acl3d.teachers.expert_knowledge import expert_knowledge as expert_kwargs
+from acl3d.teachers.expert_knowledge import teacher_params as expert_params
 
 NB_PERIODICAL_SAMPLES = 100
 
@@ -67,6 +66,7 @@ class TeacherController:
         test_set=None,
         nb_test_episodes: int = 100,
         keep_periodical_task_samples: int = 0,
+        total_steps: int | None = None,
     ):
         self.task_space = TaskSpace.coerce(task_space)
         self.seed = validation.integer("seed", seed, 0)
@@ -90,11 +90,12 @@ class TeacherController:
             if validation.flag("shuffle_dimensions", shuffle_dimensions)
             else None
         )
-        params = dict(expert_kwargs(profile, self.task_space, expert_knowledge).get(teacher, {}))
+        if total_steps is not None:
+            total_steps = validation.count("total_steps", total_steps)
+        params = expert_params(teacher, profile, self.task_space, expert_knowledge, total_steps)
         params.update(teacher_params or {})
         params = self._to_teacher_space(teacher, params)
         self.teacher = make(teacher, self.task_space, seed=self.seed, **params)
-        self._step_stream = "stream" in inspect.signature(self.teacher.step_update).parameters
 
         self._test_tasks = test_sets_mod.resolve(
             test_set, self.task_space, int(nb_test_episodes), profile
@@ -110,8 +111,8 @@ class TeacherController:
             if dist is not None and self.shuffler is not None:
                 mean = np.asarray(dist["mean"], dtype=np.float64)
                 params[key] = {**dist, "mean": self.shuffler.inverse(mean)}
-        if self.scale_reward and teacher == "adr":
-            for key in ("min_reward_thr", "max_reward_thr"):
+        if self.scale_reward:
+            for key in teacher_class(teacher).return_params:
                 if key in params:
                     params[key] = self.scale(params[key])
         return params
@@ -134,7 +135,7 @@ class TeacherController:
     @property
     def marks_exploratory(self) -> bool:
         """Whether the teacher marks some levels exploratory (Robust PLR, ACCEL)."""
-        return hasattr(self.teacher, "is_exploratory")
+        return self.teacher.marks_exploratory
 
     # ------------------------------------------------------------------ training
     def sample_task(self) -> np.ndarray:
@@ -147,7 +148,7 @@ class TeacherController:
         student. Decided now, in the teacher's space (a shuffled float32 task does not map back
         exactly), because the teacher forgets the proposal once its episode is reported."""
         teacher_task = self.teacher.sample_task()
-        exploratory = self.marks_exploratory and bool(self.teacher.is_exploratory(teacher_task))
+        exploratory = self.marks_exploratory and self.teacher.is_exploratory(teacher_task)
         task = teacher_task
         if self.shuffler is not None:
             task = self.shuffler.forward(task)
@@ -162,11 +163,7 @@ class TeacherController:
         discounted return per worker)."""
         if "step_rewards" not in self.needs:
             return
-        reward = validation.real("reward", reward)
-        if self._step_stream:
-            self.teacher.step_update(state, action, reward, next_state, bool(done), stream=worker)
-        else:
-            self.teacher.step_update(state, action, reward, next_state, bool(done))
+        self.teacher.step_update(state, action, reward, next_state, bool(done), stream=worker)
 
     def record_episode(self, env_task, episode_return, length, success, initial_obs=None) -> None:
         """A finished training episode on `env_task` (as returned by `sample_task`)."""

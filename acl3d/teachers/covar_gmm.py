@@ -23,6 +23,7 @@ class CovarGMM(GMMTeacherBase):
     """Covariance-based learning-progress mixture teacher (defaults: TeachMyAgent benchmark)."""
 
     name = "covar-gmm"
+    uses_initial_dist = True
 
     def __init__(
         self,

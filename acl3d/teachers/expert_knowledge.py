@@ -27,8 +27,9 @@ crash under "no"). acl3d separates two things:
   broad Gaussian over the whole space).
 
 The facts themselves (success threshold, ADR thresholds, initial distribution) are declared by
-each environment in its `CurriculumProfile` (acl3d.envs.profiles for the shipped ones); this
-module only decides which teacher gets which of them.
+each environment in its `CurriculumProfile` (acl3d.envs.profiles for the shipped ones); each
+teacher declares which of them it takes (`Teacher.run_params`, `uses_initial_dist`); this
+module gathers them.
 """
 
 from __future__ import annotations
@@ -36,26 +37,33 @@ from __future__ import annotations
 from typing import Any
 
 from acl3d.curriculum_profile import CurriculumProfile
-from acl3d.teachers import TEACHERS
+from acl3d.teachers import RunFacts, registered, teacher_class
 
 LEVELS: tuple[str, ...] = ("no", "low", "high")
 
 
 def expert_knowledge(
-    profile: CurriculumProfile | None, task_space, level: str
+    profile: CurriculumProfile | None, task_space, level: str, total_steps: int | None = None
 ) -> dict[str, dict[str, Any]]:
     """Constructor keyword arguments for every registered teacher at expert-knowledge `level`,
-    from the environment's `profile` (None: an environment that declares nothing)."""
+    from the environment's `profile` (None: an environment that declares nothing) and the
+    run's budget; each teacher declares what it takes (`Teacher.run_params`)."""
+    return {
+        name: teacher_params(name, profile, task_space, level, total_steps) for name in registered()
+    }
+
+
+def teacher_params(
+    teacher: str,
+    profile: CurriculumProfile | None,
+    task_space,
+    level: str,
+    total_steps: int | None = None,
+) -> dict[str, Any]:
+    """Constructor keyword arguments for `teacher` (see `expert_knowledge`)."""
     if level not in LEVELS:
         raise ValueError(f"expert_knowledge level must be one of {LEVELS}, got {level!r}")
     profile = profile if profile is not None else CurriculumProfile()
     dist = profile.initial_distribution(task_space) if level == "high" else None
-    with_dist = {} if dist is None else {"initial_dist": dist}
-    kwargs: dict[str, dict[str, Any]] = {name: {} for name in TEACHERS}
-    kwargs["alp-gmm"] = dict(with_dist)
-    kwargs["covar-gmm"] = dict(with_dist)
-    low_thr, high_thr = profile.adr_reward_thresholds
-    kwargs["adr"] = {"min_reward_thr": low_thr, "max_reward_thr": high_thr, **with_dist}
-    kwargs["self-paced"] = dict(with_dist)
-    kwargs["goal-gan"] = {"use_pretrained_samples": True, **with_dist}
-    return kwargs
+    facts = RunFacts(profile=profile, initial_dist=dist, total_steps=total_steps)
+    return dict(teacher_class(teacher).run_params(facts))

@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from acl3d import validation
-from acl3d.teachers.base import Teacher
+from acl3d.teachers.base import RunFacts, Teacher
 from acl3d.teachers.torch_utils import (
     check_positive,
     generator_state,
@@ -49,6 +49,12 @@ class GoalGAN(Teacher):
 
     name = "goal-gan"
     needs = frozenset({"success"})
+    uses_initial_dist = True
+
+    @classmethod
+    def run_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """Pretrained on the easy-task prior when known (else on a random Gaussian)."""
+        return {"use_pretrained_samples": True, **super().run_params(facts)}
 
     def __init__(
         self,

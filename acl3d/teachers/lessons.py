@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from acl3d.teachers.base import Teacher
+from acl3d.teachers.base import RunFacts, Teacher
 
 _KEYS = ("measure", "thresholds", "min_lesson_length", "signal_smoothing", "parameters")
 _MEASURES = ("reward", "progress")
@@ -76,6 +76,11 @@ class Lessons(Teacher):
 
     name = "lessons"
     needs = frozenset()
+
+    @classmethod
+    def run_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """The run's budget: ML-Agents' "progress" measure is relative to it."""
+        return {} if facts.total_steps is None else {"max_steps": int(facts.total_steps)}
 
     def __init__(
         self, task_space, seed: int | None = None, curriculum=None, max_steps: int | None = None
@@ -206,7 +211,7 @@ class Lessons(Teacher):
         task[self.fixed] = self.lesson_values[self.lesson, self.fixed]
         return task
 
-    def _step_update(self, state, action, reward: float, next_state, done: bool) -> None:
+    def _step_update(self, state, action, reward: float, next_state, done: bool, stream) -> None:
         self.steps += 1
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:

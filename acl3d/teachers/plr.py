@@ -65,6 +65,7 @@ class RobustPLR(Teacher):
 
     name = "robust-plr"
     needs = frozenset({"step_rewards", "value_estimator"})
+    marks_exploratory = True
     default_replay_prob = 0.5
 
     def __init__(
@@ -140,12 +141,12 @@ class RobustPLR(Teacher):
         self.bk["kinds"].append(kind)
         return task
 
-    def is_exploratory(self, task) -> bool:
-        """Whether `task` (proposed, not yet reported) is a new or edited level: Robust PLR does
-        not update the student's policy on its episode. When the same vector is in flight more
-        than once (ACCEL's `easy_task`), the latest proposal answers, so asking right after
-        `sample_task()` gives that sample's own kind."""
-        matches = self._pending_matches(self._check_task(task))
+    def _is_exploratory(self, task: np.ndarray) -> bool:
+        """A new or edited level: Robust PLR does not update the student's policy on its
+        episode. When the same vector is in flight more than once (ACCEL's `easy_task`), the
+        latest proposal answers, so asking right after `sample_task()` gives that sample's own
+        kind."""
+        matches = self._pending_matches(task)
         return not len(matches) or self._pending[matches[-1]][1] != REPLAY
 
     def _pending_matches(self, task: np.ndarray) -> np.ndarray:
@@ -167,11 +168,8 @@ class RobustPLR(Teacher):
         return len(self.scores) > 0
 
     # ------------------------------------------------------------------ feedback
-    def step_update(self, state, action, reward, next_state, done, stream: int = 0) -> None:
+    def _step_update(self, state, action, reward, next_state, done, stream: int) -> None:
         """Collect the episode running on `stream`; a finished one waits for its episodic_update."""
-        reward = self._check_scalar("reward", reward)
-        if not isinstance(stream, (int, np.integer)) or isinstance(stream, bool):
-            raise ValueError(f"stream={stream!r}; valid: an integer environment index")
         state = real_array("state", state)
         states, rewards = self._streams.setdefault(int(stream), ([], []))
         states.append(state.reshape(-1))

@@ -71,6 +71,7 @@ class SelfPaced(Teacher):
 
     name = "self-paced"
     needs = frozenset({"step_rewards", "initial_states", "value_estimator"})
+    uses_initial_dist = True
 
     def __init__(
         self,
@@ -249,11 +250,8 @@ class SelfPaced(Teacher):
         return self.clip(task)
 
     # ------------------------------------------------------------------ feedback
-    def step_update(self, state, action, reward, next_state, done, stream: int = 0) -> None:
+    def _step_update(self, state, action, reward, next_state, done, stream: int) -> None:
         """Accumulate the discounted return of the episode running on `stream`; count the step."""
-        reward = self._check_scalar("reward", reward)
-        if not isinstance(stream, (int, np.integer)):
-            raise ValueError(f"stream must be an integer environment index, got {stream!r}")
         acc = self._streams.setdefault(int(stream), [0.0, 0])
         acc[0] += self.discount_factor ** acc[1] * reward
         acc[1] += 1

@@ -140,7 +140,7 @@ _MAPPINGS = ("bounds", "teacher_params", "student_params", "env_kwargs")
 
 def validate(config: TrainConfig) -> None:
     """Cheap checks of names, numbers and flags (everything that needs no environment)."""
-    from acl3d.teachers import TEACHERS
+    from acl3d.teachers import teacher_class
     from acl3d.training import students
     from acl3d.training.workers import check_vec_env
 
@@ -148,8 +148,7 @@ def validate(config: TrainConfig) -> None:
         value = getattr(config, name)
         if not isinstance(value, str) or not value:
             raise check.fail(name, value, "a non-empty string")
-    if config.teacher not in TEACHERS:
-        raise ValueError(f"teacher={config.teacher!r}; valid teachers: {', '.join(TEACHERS)}")
+    teacher_class(config.teacher)  # an unknown name raises, listing the valid ones
     students.check_student(config.student, config.preset)
     check.choice("expert_knowledge", config.expert_knowledge, EXPERT_KNOWLEDGE)
     check_vec_env(config.vec_env, config.start_method)
@@ -186,13 +185,14 @@ def excludes_exploratory(config: TrainConfig) -> bool:
     """Whether the run leaves the transitions of exploratory episodes (Robust PLR / ACCEL's new
     and edited levels) out of the student's updates; `exclude_exploratory=True` with a teacher
     that marks no level or a student that cannot exclude them is refused."""
-    from acl3d.teachers import TEACHERS, teacher_class
+    from acl3d.teachers import registered, teacher_class
 
     value = config.exclude_exploratory
     if not (isinstance(value, bool) or (isinstance(value, str) and value == "auto")):
         raise check.fail("exclude_exploratory", value, '"auto", True or False')
-    marking = [name for name in TEACHERS if hasattr(teacher_class(name), "is_exploratory")]
-    if value is True and config.teacher not in marking:
+    marks = teacher_class(config.teacher).marks_exploratory
+    if value is True and not marks:
+        marking = [name for name in registered() if teacher_class(name).marks_exploratory]
         raise ValueError(
             f"exclude_exploratory=True: teacher {config.teacher!r} marks no exploratory levels; "
             f"valid with the teachers {', '.join(marking)}"
@@ -205,7 +205,7 @@ def excludes_exploratory(config: TrainConfig) -> bool:
             "optimize_memory_usage=True; valid: optimize_memory_usage=False"
         )
     if value == "auto":
-        return config.teacher in marking and able
+        return marks and able
     return value
 
 

@@ -32,14 +32,11 @@ def build_controller(config: TrainConfig, task_space, profile=None):
     `profile` is the env's `curriculum_profile` (reward bounds, expert knowledge, test sets)."""
     from acl3d.teachers.controller import TeacherController
 
-    params = dict(config.teacher_params)
-    if config.teacher == "lessons":  # ML-Agents' "progress" measure is relative to the budget
-        params.setdefault("max_steps", int(config.steps))
     return TeacherController(
         config.teacher,
         task_space,
         config.seed,
-        teacher_params=params or None,
+        teacher_params=dict(config.teacher_params) or None,
         expert_knowledge=config.expert_knowledge,
         profile=profile,
         scale_reward=config.scale_reward,
@@ -47,6 +44,7 @@ def build_controller(config: TrainConfig, task_space, profile=None):
         test_set=config.test_set,
         nb_test_episodes=config.nb_test_episodes,
         keep_periodical_task_samples=config.effective_periodical_samples,
+        total_steps=int(config.steps),
     )
 
 
