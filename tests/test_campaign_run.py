@@ -78,6 +78,11 @@ def test_campaign_on_ray_with_a_broken_run_then_analyze(tmp_path, capsys):
         assert (report / name).stat().st_size > 0
 
 
+def _mark_started(run_dir: Path) -> None:
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.yaml").write_text("config: {}\n")
+
+
 def test_interrupted_campaign_continues(tmp_path):
     out = tmp_path / "camp"
     options = {**TINY, "steps": 1536, "checkpoint_every": 256, "eval_every": 1024}
@@ -89,15 +94,21 @@ def test_interrupted_campaign_continues(tmp_path):
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL)
     first, second = out / "runs" / "random__s0", out / "runs" / "alp-gmm__s0"
     deadline = time.monotonic() + 120
-    try:  # kill everything once the first run is done and the second has a checkpoint
+    try:  # SIGKILL the campaign process once the first run is done and the second has a checkpoint
         while not (second / "checkpoints" / "LATEST").exists():
             assert time.monotonic() < deadline and proc.poll() is None
             time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        # its attempt does not go on training alone: it ends by itself, like on Ctrl-C
+        attempt = int(_campaign_lines(second)[0].split(" pid ")[1].split(":")[0])
+        while _alive(attempt):
+            assert time.monotonic() < deadline, "the attempt outlived its campaign process"
+            time.sleep(0.05)
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
     assert json.loads((first / "status.json").read_text())["status"] == "finished"
-    assert json.loads((second / "status.json").read_text())["status"] == "running"
+    assert json.loads((second / "status.json").read_text())["status"] == "interrupted"
     finished_at = (first / "status.json").stat().st_mtime_ns
 
     spec = load_spec("quick").scaled(seeds=1, sets=options)
@@ -107,22 +118,33 @@ def test_interrupted_campaign_continues(tmp_path):
     assert len(_campaign_lines(first)) == 1
     lines = _campaign_lines(second)
     assert len(lines) == 2 and "resuming from its step-" in lines[1]
+    assert not (second / "failures").exists()
     evals = (second / "evals.csv").read_text().splitlines()
     assert [row.split(",")[0] for row in evals[1:]] == ["1024", "1536"]
+
+
+def _alive(pid: int) -> bool:
+    """A running process (not a zombie waiting for its new parent to reap it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
 
 
 def test_campaign_dir_holding_another_campaign_is_refused(tmp_path):
     spec = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 512})
     camp = CampaignDir(tmp_path)
     camp.prepare(spec, spec.expand(), {})
+    _mark_started(camp.run_dir("random__s0"))
     other = load_spec("quick").scaled(seeds=1, sets={**TINY, "steps": 1024})
-    with pytest.raises(ValueError, match="holds campaign 'quick' with other runs"):
+    with pytest.raises(ValueError, match="holds campaign 'quick' whose started runs"):
         run_campaign(other, tmp_path, executor="local")
     more_seeds = load_spec("quick").scaled(seeds=2, sets={**TINY, "steps": 512})
     camp.prepare(more_seeds, more_seeds.expand(), {})  # a campaign may grow
     assert [r["name"] for r in camp.read()["runs"]] == [r.name for r in more_seeds.expand()]
-    with pytest.raises(ValueError, match="with other runs"):  # but not shrink
-        camp.prepare(spec, spec.expand(), {})
+    _mark_started(camp.run_dir("random__s1"))
+    with pytest.raises(ValueError, match=r"\['random__s1'\] are not in this one"):
+        camp.prepare(spec, spec.expand(), {})  # nor lose a run that started
     for bad, message in [
         ({"executor": "slurm"}, "executor 'slurm' unknown"),
         ({"executor": "local", "max_parallel": 0}, "max_parallel must be an integer >= 1"),

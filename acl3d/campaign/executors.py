@@ -8,16 +8,20 @@ with the executor's explanation.
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing as mp
 import os
 import signal
 import sys
+import threading
+import time
 from dataclasses import dataclass
 
 from acl3d.extras import optional_dependency
 
 EXECUTORS = ("ray", "local")
 _SHUTDOWN_GRACE_S = 30.0
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 @dataclass
@@ -55,15 +59,38 @@ def make_executor(kind: str, max_parallel: int | None, cpus: int, address: str |
 
 
 # ---------------------------------------------------------------------- local processes
-def _child(run_dir: str, options: dict, cpus: int) -> None:
+def _child(run_dir: str, options: dict, cpus: int, driver: int) -> None:
     from acl3d.campaign.attempt import run_attempt
 
+    _die_with(driver)
     result = run_attempt(run_dir, options, cpus)
     sys.exit(0 if result["ok"] else 3 if result.get("retry", True) else 4)
 
 
+def _die_with(driver: int) -> None:
+    """SIGTERM this attempt when the campaign process `driver` dies, however it dies (SIGKILL
+    included), so that no attempt outlives its campaign to race a continuing one: train ends
+    like on Ctrl-C, its status written. Linux's parent-death signal; a watching thread where
+    there is none."""
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    else:
+
+        def watch() -> None:
+            while os.getppid() == driver:
+                time.sleep(1.0)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=watch, name="acl3d-die-with-campaign", daemon=True).start()
+    if os.getppid() != driver:  # it died before the signal was armed
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 class LocalExecutor:
-    """Each attempt in a fresh `spawn` child process, at most `max_parallel` at a time."""
+    """Each attempt in a fresh `spawn` child process, at most `max_parallel` at a time; an
+    attempt ends when the campaign process does (`_die_with`)."""
 
     def __init__(self, max_parallel: int | None, cpus: int):
         self.capacity = max_parallel or max(1, (os.cpu_count() or 1) // cpus)
@@ -75,7 +102,9 @@ class LocalExecutor:
 
     def submit(self, job: Job) -> None:
         proc = self._ctx.Process(
-            target=_child, args=(job.run_dir, job.options, job.cpus), name=f"acl3d-{job.name}"
+            target=_child,
+            args=(job.run_dir, job.options, job.cpus, os.getpid()),
+            name=f"acl3d-{job.name}",
         )
         proc.start()
         self._running[job.name] = (job, proc)

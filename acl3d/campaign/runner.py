@@ -3,7 +3,7 @@
     DIR/campaign.yaml     the (scaled) spec, the options it was run with, every run's labels and
                           training options: what `acl3d analyze` and `campaign status` read
     DIR/runs/NAME/        one ordinary run directory per run (+ campaign.log, failures/)
-    DIR/.lock             pid of the campaign process using the directory
+    DIR/.lock             locked (flock) by the campaign process using the directory
 
 Running the same campaign again into the same directory continues it: finished runs are
 skipped, runs with a checkpoint resume from it, the rest start afresh. A campaign may grow
@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import threading
 from collections import deque
 from contextlib import contextmanager
@@ -26,9 +25,10 @@ from pathlib import Path
 import yaml
 
 from acl3d.campaign.executors import Job, check_executor, make_executor
+from acl3d.campaign.lock import exclusive
 from acl3d.campaign.progress import ProgressView
 from acl3d.campaign.run_state import read_state, record_failure
-from acl3d.campaign.spec import CampaignSpec, RunSpec
+from acl3d.campaign.spec import CampaignSpec, RunSpec, check_runs
 
 MANIFEST = "campaign.yaml"
 
@@ -56,7 +56,9 @@ class CampaignDir:
         return yaml.safe_load(self.manifest.read_text())
 
     def prepare(self, spec: CampaignSpec, runs: list[RunSpec], invocation: dict) -> None:
-        """Write the manifest, or check that the directory holds this very campaign."""
+        """Write the manifest, or check that the directory holds this campaign or one it may
+        become: more runs, or other options for runs that never started (a corrected command
+        after a start whose runs were all refused)."""
         doc = {
             "spec": spec.to_dict(),
             "invocation": invocation,
@@ -64,11 +66,14 @@ class CampaignDir:
         }
         if self.manifest.exists():
             old = self.read()
-            if not _comparable(old["runs"]) <= _comparable(doc["runs"]):
+            started = [r for r in old["runs"] if (self.run_dir(r["name"]) / "config.yaml").exists()]
+            changed = sorted({name for name, _ in _comparable(started) - _comparable(doc["runs"])})
+            if changed:
                 raise ValueError(
-                    f"{str(self.path)!r} holds campaign {old['spec']['name']!r} with other runs "
-                    "or options; continue it with the same spec and options (more --seeds may be "
-                    "added), or choose another --out"
+                    f"{str(self.path)!r} holds campaign {old['spec']['name']!r} whose started "
+                    f"runs {changed[:3]}{' ...' if len(changed) > 3 else ''} are not in this one "
+                    "or have other options; continue it with the same spec and options (more "
+                    "--seeds may be added), or choose another --out"
                 )
             if _comparable(old["runs"]) == _comparable(doc["runs"]):
                 return
@@ -79,34 +84,15 @@ class CampaignDir:
 
     @contextmanager
     def lock(self):
-        path = self.path / ".lock"
-        if path.exists():
-            holder = json.loads(path.read_text() or "{}")
-            if holder.get("host") == socket.gethostname() and _alive(holder.get("pid")):
-                raise ValueError(
-                    f"campaign directory {str(self.path)!r} is in use by pid {holder['pid']}"
-                )
-        path.write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
-        try:
+        """Hold the directory for this campaign process (one holder; released when it exits,
+        however it exits). Creates the directory."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        with exclusive(self.path / ".lock", f"campaign directory {str(self.path)!r}"):
             yield
-        finally:
-            path.unlink(missing_ok=True)
 
 
 def _comparable(runs: list[dict]) -> set:
     return {(r["name"], json.dumps(r["options"], sort_keys=True)) for r in runs}
-
-
-def _alive(pid) -> bool:
-    if not isinstance(pid, int):
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def cpus_of(options: dict) -> int:
@@ -129,12 +115,13 @@ def run_campaign(
         raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
     check_executor(executor, max_parallel, address)
     runs = spec.expand()
+    check_runs(runs)
     cpus = {cpus_of(r.options) for r in runs}
     if len(cpus) != 1:
         raise ValueError(f"every run of a campaign must use the same torch_threads, got {cpus}")
     camp = CampaignDir(out)
-    camp.prepare(spec, runs, invocation or {})
-    with camp.lock():
+    with camp.lock():  # before the manifest: a refused second driver changes nothing
+        camp.prepare(spec, runs, invocation or {})
         seeds = list(dict.fromkeys(r.options["seed"] for r in runs))
         todo = deque(  # seed by seed, so that a campaign cut short has every condition
             sorted(

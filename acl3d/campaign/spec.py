@@ -156,6 +156,11 @@ class CampaignSpec:
                     continue
                 name = "__".join([*(parts[a] for a in named if a in in_name), f"s{seed}"])
                 runs.append(RunSpec(name, run_labels, {**options, "seed": seed}))
+        if not runs:
+            raise ValueError(
+                f"spec {self.name!r}: its exclude rules remove every run of the grid "
+                f"({len(self.exclude)} rules: {self.exclude}); nothing to run"
+            )
         names = [r.name for r in runs]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
@@ -167,6 +172,20 @@ class CampaignSpec:
 
 
 # ---------------------------------------------------------------------- option checks
+def check_runs(runs: list[RunSpec]) -> None:
+    """Every run's options as `train` will check them (names, bounds, combinations), so that a
+    bad value is refused before the campaign writes anything or starts any run."""
+    from acl3d.training.config import student_params, validate
+
+    for run in runs:
+        try:
+            config = TrainConfig.from_dict({**run.options, "out": run.name})
+            validate(config)
+            student_params(config)
+        except ValueError as exc:
+            raise ValueError(f"run {run.name}: {exc}") from None
+
+
 def _field_kinds() -> dict[str, str]:
     """TrainConfig field -> 'int' | 'float' | 'bool' | 'str' | 'dict' | 'any', from its
     annotation, with ' | None' when None is allowed."""
@@ -286,10 +305,13 @@ def _axis_entries(axis: str, values, where: str) -> list[tuple[str, str | None, 
 
 
 def _scale(options: dict, budget: float) -> dict:
+    """Positive step counts x `budget`, rounded, at least 1; other values are left for
+    `check_runs` to accept (0 turns a schedule off) or refuse (a negative count)."""
     out = dict(options)
     for key in STEP_COUNTS:
-        if isinstance(out.get(key), (int, float)) and not isinstance(out[key], bool) and out[key]:
-            out[key] = max(1, int(round(out[key] * budget)))
+        value = out.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
+            out[key] = max(1, int(round(value * budget)))
     return out
 
 

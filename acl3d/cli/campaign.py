@@ -60,8 +60,11 @@ def _list(args) -> int:
 def _show(args) -> int:
     import yaml
 
+    from acl3d.campaign.spec import check_runs
+
     spec = _spec(args)
     runs = spec.expand()
+    check_runs(runs)
     print(yaml.safe_dump({"base": spec.base, "grid": spec.grid}, sort_keys=False).rstrip())
     print(f"# {len(runs)} runs, {sum(r.options.get('steps', 0) for r in runs):,} steps in all")
     for r in runs:

@@ -1,0 +1,151 @@
+"""Campaign mistakes that must change nothing: bad spec values refused before anything is
+written, one campaign process per directory (an atomic lock), and no attempt started in a run
+directory where another process still works."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from acl3d.campaign import CampaignDir, CampaignSpec, load_spec, run_campaign
+from acl3d.campaign.attempt import run_attempt
+from acl3d.campaign.lock import LockBusy
+from acl3d.cli import main
+
+TINY = {"n_envs": 1, "vec_env": "dummy", "nb_test_episodes": 4, "steps": 512, "verbose": 0}
+
+
+@pytest.mark.parametrize(
+    "sets, message",
+    [
+        (["steps=-5"], "steps=-5"),
+        (["n_envs=0"], "n_envs=0"),
+        (["teacher=nope"], "teacher='nope'"),
+        (["eval_every=-3"], "eval_every=-3"),
+        (["nb_test_episodes=0"], "nb_test_episodes=0"),
+        (["reset_student_every=-7000"], "reset_student_every=-7000"),
+        (["student=ppo", "buffer_size=100"], "buffer_size applies to the sac student only"),
+    ],
+)
+def test_bad_values_are_refused_before_anything_is_written(sets, message, tmp_path, capsys):
+    out = tmp_path / "camp"
+    argv = ["campaign", "run", "quick", "--out", str(out), "--executor", "local"]
+    for item in sets:
+        argv += ["--set", item]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "error: run " in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_negative_step_counts_in_a_spec_are_not_scaled_into_valid_ones(tmp_path):
+    for key, value in [("steps", -4096), ("eval_every", -3), ("reset_student_every", -7000)]:
+        spec = CampaignSpec.from_dict(
+            {"name": "neg", "base": {**TINY, key: value}, "grid": {"teacher": ["random"]}}
+        )
+        for budget in (1.0, 0.5):
+            with pytest.raises(ValueError, match=f"run s0: {key}={value};"):
+                run_campaign(spec.scaled(budget=budget), tmp_path / "camp", executor="local")
+    assert not (tmp_path / "camp").exists()
+
+
+def test_exclude_that_removes_every_run_says_so():
+    spec = CampaignSpec.from_dict(
+        {"name": "none", "grid": {"teacher": ["random"]}, "exclude": [{"teacher": "random"}]}
+    )
+    with pytest.raises(ValueError, match="exclude rules remove every run"):
+        spec.expand()
+
+
+def test_campaign_lock_has_one_holder_among_simultaneous_attempts(tmp_path):
+    camp, start = CampaignDir(tmp_path / "camp"), threading.Barrier(8)
+    got, refused, release = [], [], threading.Event()
+
+    def attempt(i: int) -> None:
+        start.wait()
+        try:
+            with camp.lock():
+                got.append(i)
+                release.wait(10)
+        except LockBusy as exc:
+            refused.append(str(exc))
+
+    threads = [threading.Thread(target=attempt, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    while len(got) + len(refused) < 8 and all(t.is_alive() for t in threads):
+        time.sleep(0.01)
+    release.set()
+    for t in threads:
+        t.join()
+    assert len(got) == 1 and len(refused) == 7
+    assert all("is in use by pid" in message for message in refused)
+    with camp.lock():  # released by its holder
+        pass
+
+
+def test_refused_second_campaign_process_changes_nothing(tmp_path):
+    out = tmp_path / "camp"
+    spec = load_spec("quick").scaled(seeds=2, sets=TINY)
+    camp = CampaignDir(out)
+    with camp.lock():
+        camp.prepare(spec, spec.expand(), {})
+        manifest = camp.manifest.read_bytes()
+        more = load_spec("quick").scaled(seeds=3, sets=TINY)
+        with pytest.raises(LockBusy, match=f"campaign directory '{out}' is in use by pid"):
+            run_campaign(more, out, executor="local")
+        assert camp.manifest.read_bytes() == manifest
+
+
+def test_runs_that_never_started_may_change_options(tmp_path):
+    """A campaign whose runs all failed before starting (a wrong option train refused) does not
+    block the corrected command; once a run has started, its options are fixed."""
+    camp = CampaignDir(tmp_path)
+    wrong = load_spec("quick").scaled(seeds=1, sets={**TINY, "teacher_params": {"nope": 1}})
+    camp.prepare(wrong, wrong.expand(), {})
+    (camp.run_dir("random__s0") / "failures").mkdir(parents=True)
+    right = load_spec("quick").scaled(seeds=2, sets=TINY)
+    camp.prepare(right, right.expand(), {})
+    assert "teacher_params" not in camp.read()["runs"][0]["options"]
+    (camp.run_dir("random__s0") / "config.yaml").write_text("config: {}\n")  # it started
+    with pytest.raises(ValueError, match=r"started runs \['random__s0'\] are not in this one"):
+        camp.prepare(wrong, wrong.expand(), {})
+    fewer = load_spec("quick").scaled(seeds=1, sets=TINY)
+    camp.prepare(fewer, fewer.expand(), {})  # the seed-1 runs never started: they may go
+    assert [r["name"] for r in camp.read()["runs"]] == ["random__s0", "alp-gmm__s0"]
+
+
+def _hold_log(run: Path):
+    """Another attempt of the run, still ending: holds the run's campaign log."""
+    from acl3d.campaign.lock import try_lock
+
+    run.mkdir(parents=True, exist_ok=True)
+    f = (run / "campaign.log").open("a")
+    assert try_lock(f.fileno())
+    return f
+
+
+def test_attempt_does_not_start_beside_a_live_attempt_of_the_same_run(tmp_path):
+    run = tmp_path / "run"
+    holder = _hold_log(run)
+    (run / "evals.csv").write_text("the other attempt's\n")
+    result = run_attempt(str(run), {"steps": 512}, 1, wait_s=0.3)
+    assert result == {
+        "ok": False,
+        "error": f"another attempt of this run (of a campaign process that was stopped?) still "
+        f"works in {str(run)!r} after 0.3 s: not started",
+        "retry": False,
+    }
+    assert (run / "evals.csv").read_text() == "the other attempt's\n"
+    assert not (run / "failures").exists()
+    log = (run / "campaign.log").read_text()
+    assert "waiting for another attempt of this run" in log and "not started" in log
+    # once the other attempt ends, the next one goes ahead (here: a finished run, left alone)
+    (run / "config.yaml").write_text("config: {}\n")
+    (run / "status.json").write_text('{"status": "finished", "steps": 512}')
+    threading.Timer(0.5, holder.close).start()
+    assert run_attempt(str(run), {"steps": 512}, 1, wait_s=30) == {"ok": True, "steps": 512}
+    assert "already finished" in (run / "campaign.log").read_text()
