@@ -41,6 +41,19 @@ def resize_hfield(hfield: mujoco.MjsHField, ncol: int, size) -> None:
     hfield.userdata = np.zeros(2 * ncol)
 
 
+def attach_body(spec: mujoco.MjSpec, body: Body, start_x: float, camera_distance: float) -> None:
+    """Attach `body` at its spawn point (start_x, 0, spawn height) with a camera following it."""
+    body_spec = body.spec()
+    body_spec.body(body.root).add_camera(
+        name="track",
+        mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM,
+        pos=[2.0, -camera_distance, 2.5],
+        xyaxes=[1, 0, 0, 0, 0.3, 1],
+    )
+    frame = spec.worldbody.add_frame(pos=[start_x, 0.0, body.spawn_height])
+    spec.attach(body_spec, prefix=PREFIX, frame=frame)
+
+
 class Arena:
     """Compiled track model + the in-place terrain writer."""
 
@@ -69,17 +82,7 @@ class Arena:
             wall.size = [half_length, 0.05, wall.size[2]]
             wall.pos = [centre_x, side * (TRACK_HALF_WIDTH + 0.05), wall.size[2]]
         self.customise(spec)
-
-        body_spec = body.spec()
-        root = body_spec.body(body.root)
-        root.add_camera(
-            name="track",
-            mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM,
-            pos=[2.0, -camera_distance, 2.5],
-            xyaxes=[1, 0, 0, 0, 0.3, 1],
-        )
-        frame = spec.worldbody.add_frame(pos=[self.start_x, 0.0, body.spawn_height])
-        spec.attach(body_spec, prefix=PREFIX, frame=frame)
+        attach_body(spec, body, self.start_x, camera_distance)
         self.spec = spec
         self.model = spec.compile()
         self.bound = BoundBody(body, self.model)
