@@ -28,13 +28,24 @@ TASKS = {
     "stump-tracks": {"stump_height": 1.0, "obstacle_spacing": 2.0},
     "hexagon-tracks": {"poly_shape": [1.0] * 12},
     "parkour": {"input_vector": [0.2, -0.3, 0.1], "water_level": 0.3, "creepers_height": 2.0},
+    "terrain3d": {
+        "block_height": 0.6,
+        "block_width": 0.4,
+        "block_spacing": 2.0,
+        "cross_slope": 12.0,
+        "hill_slope": 8.0,
+        "roughness": 0.15,
+    },
 }
-# Every body on Stump Tracks; the three body kinds on the other tracks.
+# Every body on Stump Tracks; the three body kinds on the other tracks; a 3D and a planar
+# walker on 3D Terrain.
 CASES = [("stump-tracks", body) for body in BODIES] + [
     ("hexagon-tracks", "classic_bipedal"),
     ("parkour", "classic_bipedal"),
     ("parkour", "climbing_profile_chimpanzee"),
     ("parkour", "fish"),
+    ("terrain3d", "big_quadru"),
+    ("terrain3d", "classic_bipedal"),
 ]
 
 

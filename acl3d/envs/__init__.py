@@ -38,6 +38,12 @@ REGISTRY: dict[str, Registration] = {
         {},
         "acl3d.envs.batched_vector:parkour",
     ),
+    "terrain3d": Registration(
+        "acl3d/Terrain3D-v0",
+        "acl3d.envs.terrain3d_env:Terrain3DEnv",
+        {},
+        "acl3d.envs.batched_vector:terrain3d",
+    ),
 }
 ENV_IDS: dict[str, str] = {name: reg.id for name, reg in REGISTRY.items()}
 ENV_NAMES: tuple[str, ...] = tuple(REGISTRY)

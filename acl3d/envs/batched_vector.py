@@ -186,3 +186,8 @@ def hexagon_tracks(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
 def parkour(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
     """Vector entry point of acl3d/Parkour-v0."""
     return BatchedVectorEnv("acl3d/Parkour-v0", num_envs, **kwargs)
+
+
+def terrain3d(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
+    """Vector entry point of acl3d/Terrain3D-v0."""
+    return BatchedVectorEnv("acl3d/Terrain3D-v0", num_envs, **kwargs)

@@ -11,6 +11,9 @@ next to the environments, and reaches the teachers through `env.unwrapped.curric
   (clipped into the bounds), variance 0.01; Parkour: none;
 * test sets: the fixed Stump Tracks grid (stump_height in [0, 3] x obstacle_spacing in [0, 6])
   is the default for the 2-D stump space; Parkour names its walking, climbing and swimming sets.
+* 3D Terrain: the success flag is crossing the finish line (returns of crossings are ~250-330);
+  the prior is centred on the easy corner (no blocks, no slopes, widest spacing), variance
+  (0.1 * range)^2; the "graded" test set runs from trivial to infeasible.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.track_task import SUCCESS_RETURN
 from acl3d.task_space import TaskSpace
-from acl3d.terrain import parkour_test_sets
+from acl3d.terrain import parkour_test_sets, terrain3d_test_sets
 
 
 def _stump_initial_dist(space: TaskSpace) -> dict[str, np.ndarray]:
@@ -67,4 +70,20 @@ PARKOUR = CurriculumProfile(
         name: functools.partial(parkour_test_sets.build, name)
         for name in (*parkour_test_sets.SEEDS, *parkour_test_sets.ALIASES)
     },
+)
+
+
+def _terrain3d_initial_dist(space: TaskSpace) -> dict[str, np.ndarray]:
+    return {
+        "mean": terrain3d_test_sets.easy_corner(space),
+        "variance": np.diag((0.1 * (space.high - space.low)) ** 2),
+    }
+
+
+TERRAIN3D = CurriculumProfile(
+    name="terrain3d",
+    reward_bounds=(-150.0, 350.0),
+    success_return=SUCCESS_RETURN,
+    initial_dist=_terrain3d_initial_dist,
+    test_sets={"graded": terrain3d_test_sets.graded},
 )

@@ -1,0 +1,102 @@
+"""3D Terrain: a field whose obstacles, slopes and roughness vary across it as well as along it.
+
+`gymnasium.make("acl3d/Terrain3D-v0", body=...)`. The env is the track core (`TrackEnv`)
+composed with the field's arena (`acl3d.envs.terrain3d_arena`: one 2D heightfield, rewritten in
+place at every reset) and its task (`acl3d.envs.terrain3d_task`: progress, heading and drift,
+leaving the field fails, crossing succeeds). The terrain and its task space are in
+`acl3d.terrain.terrain3d`; `docs/terrain3d.md` describes the family.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from acl3d import validation
+from acl3d.bodies.base import Body
+from acl3d.envs.profiles import TERRAIN3D
+from acl3d.envs.terrain3d_arena import Terrain3DArena
+from acl3d.envs.terrain3d_task import Terrain3DTask, make_sensor
+from acl3d.envs.track_env import TrackEnv
+from acl3d.terrain.terrain3d import (
+    Terrain3DGenerator,
+    check_buildable,
+    start_pad_for,
+    terrain3d_task_space,
+)
+
+OBSERVATIONS = ("height_scan", "lidar")
+
+
+class Terrain3DEnv(TrackEnv):
+    """A 6 m wide, ~30 m long 3D field; any body crosses it (default: big_quadru, free 3D).
+
+    Args:
+        body, planar, body_options, frame_skip, render_mode, width, height, camera, quality:
+            as for the tracks (`acl3d.envs.track_env.TrackEnv`).
+        task_parameters: which terrain parameters form the task space (default: all six of
+            `acl3d.terrain.terrain3d.TERRAIN3D_PARAMETERS`); the others keep their defaults.
+        observation: the terrain sensor: "height_scan" (63 heights around the body in its
+            heading frame, `acl3d.envs.height_scan`) or "lidar" (10 sagittal rays).
+    """
+
+    def __init__(
+        self,
+        body: str | Body = "big_quadru",
+        planar: bool | None = None,
+        task_parameters: tuple[str, ...] | None = None,
+        observation: str = "height_scan",
+        body_options: Mapping | None = None,
+        frame_skip: int | None = None,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | None = None,
+        quality: str = "fast",
+    ):
+        composition = Terrain3DComposition(task_parameters, observation)
+        self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
+        self._compose(
+            composition,
+            self._make_body(body, planar, body_options),
+            frame_skip,
+            render_mode,
+            dict(width=width, height=height, camera=camera, quality=quality),
+        )
+        self.observation = observation
+
+    def _info(self, unstable: bool) -> dict:
+        info = {"success": self.task.crossed}
+        if unstable:
+            info["unstable"] = True
+        return info
+
+
+class Terrain3DComposition:
+    """The field's arena (one 2D heightfield) and task (progress, heading, drift, crossing)."""
+
+    track = "terrain3d"
+
+    def __init__(self, task_parameters, observation: str):
+        if task_parameters is not None and (
+            isinstance(task_parameters, str) or not isinstance(task_parameters, (list, tuple))
+        ):
+            raise validation.fail(
+                "task_parameters", task_parameters, "None or a list of terrain parameter names"
+            )
+        self.task_space = terrain3d_task_space(task_parameters)
+        self.observation = validation.choice("observation", observation, OBSERVATIONS)
+        self.profile = TERRAIN3D
+
+    def check_buildable(self, task: dict) -> None:
+        check_buildable(task)
+
+    def build_arena(self, body: Body) -> Terrain3DArena:
+        return Terrain3DArena(body, Terrain3DGenerator(start_pad_for(body.length)))
+
+    def build_task(self, arena: Terrain3DArena) -> Terrain3DTask:
+        return Terrain3DTask(
+            arena.bound, make_sensor(self.observation, arena), arena, arena.generator.end_x
+        )
+
+    def signature(self) -> str:
+        return f" observation={self.observation}"

@@ -1,0 +1,298 @@
+"""3D Terrain: the field, its task space and rules, the height scan, determinism and snapshots."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import acl3d  # noqa: F401  (registers the ids)
+from acl3d.envs.env_state import get_env_state, set_env_state
+from acl3d.envs.height_scan import FORWARD, LATERAL, HeightScan
+from acl3d.envs.terrain3d_task import FAIL_REWARD
+from acl3d.terrain import terrain3d_test_sets
+from acl3d.terrain.terrain3d import HEIGHT_RANGE, Terrain3DGenerator, terrain3d_task_space
+from tests.gl_support import require_offscreen_gl
+from tests.test_determinism import rollout as hashed_rollout
+
+ENV_ID = "acl3d/Terrain3D-v0"
+TASK = {
+    "block_height": 0.6,
+    "block_width": 0.4,
+    "block_spacing": 2.0,
+    "cross_slope": 12.0,
+    "hill_slope": 8.0,
+    "roughness": 0.15,
+}
+SCAN = len(FORWARD) * len(LATERAL)
+
+
+def rollout(**kwargs) -> str:
+    """Hash of a big_quadru episode (resets included) on TASK: `tests.test_determinism`'s."""
+    return hashed_rollout(ENV_ID, task=TASK, steps=120, planar=False, **kwargs)
+
+
+# ---------------------------------------------------------------------- terrain
+def test_the_easiest_task_is_flat_and_full_width_walls_span_the_field():
+    gen = Terrain3DGenerator(start_pad=4.0)
+    flat = gen.heights({"block_height": 0.0}, np.random.default_rng(0))
+    assert flat.shape == (gen.grid.nrow, gen.grid.ncol) and not flat.any()
+    walls = gen.heights({"block_height": 1.0, "block_width": 1.0}, np.random.default_rng(0))
+    raised = walls.max(axis=0) > 0.5  # columns holding a wall
+    assert raised.any() and (walls[:, raised] > 0.5).all()  # every row: nothing to walk around
+    assert not walls[:, gen.grid.x < gen.start_pad].any()  # the start pad stays flat
+
+
+def test_narrow_blocks_leave_room_to_walk_around_and_slopes_vary_across_the_field():
+    gen = Terrain3DGenerator(start_pad=4.0)
+    blocks = gen.heights({"block_height": 1.0, "block_width": 0.3}, np.random.default_rng(1))
+    covered = (blocks > 0.5).mean(axis=0)
+    assert 0.25 < covered[covered > 0].mean() < 0.35  # 30% of the width per row of blocks
+    twisted = gen.heights({"cross_slope": 20.0}, np.random.default_rng(1))
+    across = np.diff(twisted, axis=0)  # height change from one row (y) to the next
+    assert np.abs(across).max() == pytest.approx(np.tan(np.radians(20.0)) * 0.1, rel=1e-3)
+
+
+def test_the_hardest_buildable_task_fits_the_heightfield_range():
+    gen = Terrain3DGenerator(start_pad=4.0)
+    worst = {
+        "block_height": 3.0,
+        "block_width": 1.0,
+        "block_spacing": 0.0,
+        "cross_slope": 40.0,
+        "hill_slope": 40.0,
+        "roughness": 0.5,
+    }
+    h = gen.heights(worst, np.random.default_rng(2))
+    assert HEIGHT_RANGE[0] < h.min() and h.max() < HEIGHT_RANGE[1]
+
+
+def test_the_compiled_heightfield_is_what_mujoco_collides_with():
+    env = gym.make(ENV_ID).unwrapped
+    env.reset(seed=0, options={"task": TASK})
+    g, m, d = env.arena.grid, env.model, env.data
+    geom = np.zeros(1, dtype=np.int32)
+    for row, col in ((5, 120), (50, 200), (30, 290)):
+        x, y = g.x[col], g.y[row]
+        dist = mujoco.mj_ray(
+            m, d, np.array([x, y, 20.0]), np.array([0, 0, -1.0]), None, 1, -1, geom
+        )
+        assert 20.0 - dist == pytest.approx(env.arena.heights[row, col], abs=1e-5)
+
+
+# ---------------------------------------------------------------------- env API and inputs
+@pytest.mark.parametrize(
+    "body, observation, size",
+    [
+        ("big_quadru", "height_scan", 9 + 20 + SCAN + 1),
+        ("big_quadru", "lidar", 9 + 20 + 10 + 1),
+        ("classic_bipedal", "height_scan", 4 + 10 + SCAN + 1),
+    ],
+)
+def test_check_env_and_observation_sizes(body, observation, size):
+    env = gym.make(ENV_ID, body=body, observation=observation)
+    assert env.observation_space.shape == (size,)
+    check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env, warn=False)
+
+
+@pytest.mark.parametrize("body", ["spider", "dmc:ant", "dmc:cmu_humanoid", "small_bipedal"])
+def test_other_walkers_run_on_the_field(body):
+    env = gym.make(ENV_ID, body=body)
+    obs, _ = env.reset(seed=0, options={"task": TASK})
+    for _ in range(5):
+        obs, reward, *_ = env.step(env.action_space.sample())
+    assert np.isfinite(obs).all() and np.isfinite(reward)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"observation": "camera"}, "observation"),
+        ({"task_parameters": ["block_height", "stump_height"]}, "task_parameters"),
+        ({"task_parameters": "roughness"}, "task_parameters"),
+    ],
+)
+def test_bad_options_raise(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make(ENV_ID, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "task, match",
+    [
+        ({"block_height": 3.5}, r"block_height.*3\.5"),
+        ({"block_width": -0.1}, "block_width"),
+        ({"roughness": np.nan}, "roughness"),
+        ({"stump_height": 1.0}, "stump_height"),
+    ],
+)
+def test_bad_tasks_raise_and_change_nothing(task, match):
+    env = gym.make(ENV_ID).unwrapped
+    env.reset(seed=0, options={"task": TASK})
+    before = env.get_task()
+    with pytest.raises(ValueError, match=match):
+        env.reset(options={"task": task})
+    assert env.get_task() == before
+
+
+# ---------------------------------------------------------------------- rules
+def _teleport(env, x=None, y=None):
+    q = env.bound.root_qpos
+    if x is not None:
+        env.data.qpos[q] = x
+    if y is not None:
+        env.data.qpos[q + 1] = y
+    mujoco.mj_forward(env.model, env.data)
+
+
+def test_leaving_the_field_fails_and_crossing_the_line_succeeds():
+    env = gym.make(ENV_ID).unwrapped
+    env.reset(seed=0, options={"task": {"block_height": 0.0}})
+    _teleport(env, y=env.arena.grid.half_width + 0.3)
+    _, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+    assert (reward, terminated, info["success"]) == (FAIL_REWARD, True, False)
+    env.reset(seed=0)
+    _teleport(env, x=env.task.end_x + 0.2)
+    _, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape))
+    assert terminated and info["success"] and reward > 100  # the progress of the jump
+
+
+def test_progress_pays_and_drift_and_heading_cost():
+    env = gym.make(ENV_ID).unwrapped
+    env.reset(seed=0, options={"task": {"block_height": 0.0}})
+    start = env.task.prev_shaping
+    _teleport(env, x=env.data.qpos[env.bound.root_qpos] + 1.0)
+    env.step(np.zeros(env.action_space.shape))
+    forward = env.task.prev_shaping - start
+    env.reset(seed=0)
+    _teleport(env, x=env.data.qpos[env.bound.root_qpos] + 1.0, y=1.0)
+    env.step(np.zeros(env.action_space.shape))
+    assert forward == pytest.approx(15.0, abs=1.0)  # 15 per metre along x
+    assert env.task.prev_shaping - start == pytest.approx(forward - 5.0, abs=1.0)
+
+
+# ---------------------------------------------------------------------- height scan
+def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
+    env = gym.make(ENV_ID).unwrapped
+    env.reset(seed=0, options={"task": TASK})
+    _teleport(env, x=12.0, y=-0.5)
+    g, h = env.arena.grid, env.arena.heights
+    scan = HeightScan(g.x_min, -g.half_width, g.cell, env.bound.root_id)
+    origin = env.data.xpos[env.bound.root_id].copy()
+    for yaw in (0.0, 0.7, np.pi / 2):  # turn the body: the grid turns with it
+        q = env.bound.root_qpos
+        env.data.qpos[q + 3 : q + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+        mujoco.mj_forward(env.model, env.data)
+        got = scan.read(h, env.data)
+        dx, dy = np.meshgrid(FORWARD, LATERAL)
+        px = origin[0] + np.cos(yaw) * dx - np.sin(yaw) * dy
+        py = origin[1] + np.sin(yaw) * dx + np.cos(yaw) * dy
+        u, v = (px - g.x_min) / g.cell, (py + g.half_width) / g.cell
+        i, j = np.floor(u).astype(int), np.floor(v).astype(int)
+        a, b = u - i, v - j
+        expected = (
+            h[j, i] * (1 - a) * (1 - b)
+            + h[j, i + 1] * a * (1 - b)
+            + h[j + 1, i] * (1 - a) * b
+            + h[j + 1, i + 1] * a * b
+        )
+        np.testing.assert_allclose(got, expected.ravel() - origin[2], atol=1e-9)
+
+
+def test_height_scan_of_n_envs_is_bit_identical_to_each_alone():
+    env = gym.make(ENV_ID).unwrapped
+    scan, heights, origins, headings, alone = env.task.lidar, [], [], [], []
+    for seed in range(3):
+        env.reset(seed=seed, options={"task": TASK})
+        for _ in range(10 * seed + 5):
+            env.step(env.action_space.sample())
+        r = env.data.xmat[env.bound.root_id]
+        heights.append(env.arena.heights.copy())
+        origins.append(env.data.xpos[env.bound.root_id].copy())
+        headings.append([r[0], r[3]])
+        alone.append(scan.read(env.arena.heights, env.data))
+    batch = scan.read_batch(np.stack(heights), np.stack(origins), np.array(headings))
+    np.testing.assert_array_equal(batch, np.stack(alone))
+
+
+# ---------------------------------------------------------------------- determinism, snapshots
+def test_two_instances_and_a_spawned_process_agree():
+    with mp.get_context("spawn").Pool(1) as pool:
+        other = pool.apply(rollout)
+    assert rollout() == rollout() == other
+
+
+def test_batched_envs_match_single_envs():
+    n, seed = 2, 5
+    vec = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", threads=2)
+    singles = [gym.make(ENV_ID) for _ in range(n)]
+    obs, _ = vec.reset(seed=seed, options={"task": TASK})
+    for i, env in enumerate(singles):
+        np.testing.assert_array_equal(obs[i], env.reset(seed=seed + i, options={"task": TASK})[0])
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        actions = rng.uniform(-1, 1, (n, *vec.single_action_space.shape))
+        obs, rewards, terminated, truncated, infos = vec.step(actions)
+        for i, env in enumerate(singles):
+            o, r, te, tr, info = env.step(actions[i])
+            assert (r, te, tr, info["success"]) == (rewards[i], terminated[i], truncated[i], False)
+            if te or tr:
+                o, _ = env.reset()
+            np.testing.assert_array_equal(o, obs[i])
+    vec.close()
+
+
+def test_a_snapshot_continues_identically_and_a_bad_one_changes_nothing():
+    env, other = gym.make(ENV_ID), gym.make(ENV_ID)
+    env.reset(seed=4, options={"task": TASK})
+    for a in np.random.default_rng(6).uniform(-1, 1, (30, env.action_space.shape[0])):
+        env.step(a)
+    other.reset(seed=0)
+    set_env_state(other, get_env_state(env))
+    for a in np.random.default_rng(7).uniform(-1, 1, (40, env.action_space.shape[0])):
+        o1, r1, t1, *_ = env.step(a)
+        o2, r2, t2, *_ = other.step(a)
+        np.testing.assert_array_equal(o1, o2)
+        assert (r1, t1) == (r2, t2)
+        if t1:
+            break
+    before = get_env_state(other)
+    bad = dict(before, **{"terrain/heights": np.zeros((3, 3))})
+    with pytest.raises(ValueError, match="terrain/heights"):
+        set_env_state(other, bad)
+    after = get_env_state(other)
+    assert all(np.array_equal(np.asarray(before[k]), np.asarray(after[k])) for k in before)
+
+
+# ---------------------------------------------------------------------- curriculum profile
+def test_profile_prior_is_the_easy_corner_and_the_graded_set_rises_in_difficulty():
+    env = gym.make(ENV_ID).unwrapped
+    profile, space = env.curriculum_profile, env.task_space
+    prior = profile.initial_distribution(space)
+    easy = dict(zip(space.names, prior["mean"], strict=True))
+    assert easy["block_height"] == 0.0 and easy["block_spacing"] == space.high[2]
+    tasks = profile.test_sets["graded"](space, 50)
+    assert tasks.shape == (50, 6) and np.array_equal(tasks, terrain3d_test_sets.graded(space, 50))
+    assert ((space.low <= tasks) & (tasks <= space.high)).all()
+    heights = tasks[:, space.names.index("block_height")]
+    assert heights[:10].mean() < 0.2 < 1.3 < heights[-10:].mean()
+    assert terrain3d_task_space(["roughness"]).names == ("roughness",)
+
+
+# ---------------------------------------------------------------------- rendering
+def test_offscreen_frames_show_the_new_terrain():
+    require_offscreen_gl()
+    env = gym.make(ENV_ID, render_mode="rgb_array", width=160, height=120)
+    env.reset(seed=0, options={"task": {"block_height": 0.0}})
+    flat = env.render()
+    env.reset(seed=0, options={"task": dict(TASK, block_height=1.5, block_width=1.0)})
+    walls = env.render()  # heights re-uploaded to the renderer after the new task
+    env.close()
+    assert flat.shape == (120, 160, 3) and flat.std() > 10
+    assert not np.array_equal(flat, walls)
