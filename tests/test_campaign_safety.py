@@ -23,7 +23,7 @@ TINY = {"n_envs": 1, "vec_env": "dummy", "nb_test_episodes": 4, "steps": 512, "v
     [
         (["steps=-5"], "steps=-5"),
         (["n_envs=0"], "n_envs=0"),
-        (["teacher=nope"], "teacher='nope'"),
+        (["teacher=nope"], "teacher 'nope'"),
         (["eval_every=-3"], "eval_every=-3"),
         (["nb_test_episodes=0"], "nb_test_episodes=0"),
         (["reset_student_every=-7000"], "reset_student_every=-7000"),
