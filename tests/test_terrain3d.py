@@ -183,13 +183,13 @@ def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
     env.reset(seed=0, options={"task": TASK})
     _teleport(env, x=12.0, y=-0.5)
     g, h = env.arena.grid, env.arena.heights
-    scan = HeightScan(g.x_min, -g.half_width, g.cell, env.bound.root_id)
+    scan = HeightScan(env.arena)
     origin = env.data.xpos[env.bound.root_id].copy()
     for yaw in (0.0, 0.7, np.pi / 2):  # turn the body: the grid turns with it
         q = env.bound.root_qpos
         env.data.qpos[q + 3 : q + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         mujoco.mj_forward(env.model, env.data)
-        got = scan.read(h, env.data)
+        got = scan.read(env.model, env.data, env.data.xpos[env.bound.root_id])
         dx, dy = np.meshgrid(FORWARD, LATERAL)
         px = origin[0] + np.cos(yaw) * dx - np.sin(yaw) * dy
         py = origin[1] + np.sin(yaw) * dx + np.cos(yaw) * dy
@@ -216,9 +216,30 @@ def test_height_scan_of_n_envs_is_bit_identical_to_each_alone():
         heights.append(env.arena.heights.copy())
         origins.append(env.data.xpos[env.bound.root_id].copy())
         headings.append([r[0], r[3]])
-        alone.append(scan.read(env.arena.heights, env.data))
+        alone.append(scan.read(env.model, env.data, env.data.xpos[env.bound.root_id]))
     batch = scan.read_batch(np.stack(heights), np.stack(origins), np.array(headings))
     np.testing.assert_array_equal(batch, np.stack(alone))
+
+
+def test_height_scan_on_stump_tracks_reads_the_profile_at_every_lateral_offset():
+    env = gym.make("acl3d/StumpTracks-v0", observation="height_scan").unwrapped
+    obs, _ = env.reset(seed=0, options={"task": {"stump_height": 2.0, "obstacle_spacing": 1.0}})
+    assert obs.shape == (4 + 10 + SCAN,)
+    x0, _, z0 = env.data.xpos[env.bound.root_id]
+    expected = np.interp(x0 + FORWARD, env.arena.grid.x, env.arena.heights) - z0
+    np.testing.assert_allclose(
+        obs[14:].reshape(len(LATERAL), -1), np.tile(expected, (7, 1)), atol=1e-5
+    )
+    with pytest.raises(ValueError, match="observation"):
+        gym.make("acl3d/StumpTracks-v0", observation="heights")
+
+
+def test_height_scan_on_stump_tracks_batched_matches_single_envs():
+    from tests.test_batched_env import assert_matches_single_envs
+
+    task = {"stump_height": 1.5, "obstacle_spacing": 1.0}
+    kw = {"body": "spider", "planar": False, "observation": "height_scan"}
+    assert_matches_single_envs("acl3d/StumpTracks-v0", 2, 2, 50, task=task, limit=30, **kw)
 
 
 # ---------------------------------------------------------------------- determinism, snapshots

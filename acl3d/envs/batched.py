@@ -23,6 +23,7 @@ import numpy as np
 from acl3d import validation
 from acl3d.envs import env_id as resolve_env_id
 from acl3d.envs.batched_track import TrackBatch
+from acl3d.envs.lidar import ProfileLidar
 from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
 
 MAX_ENVS = 4096
@@ -72,8 +73,10 @@ class BatchedEnvs:
         self.single_action_space = e.action_space
         self.action_size = e.action_space.shape[0]
         self.task_space = e.task_space
-        # tracks: array step; Parkour (water, creepers, grasps): each sub-env's own step code
-        self._batch = TrackBatch(self.envs) if type(e.task) is TrackTask else None
+        # tracks with lidars: array step; Parkour (water, creepers, grasps), height scans and
+        # 3D Terrain: each sub-env's own step code
+        arrays = type(e.task) is TrackTask and isinstance(e.task.lidar, ProfileLidar)
+        self._batch = TrackBatch(self.envs) if arrays else None
         self.elapsed = np.zeros(num_envs, dtype=np.int64)
         self.threads = min(threads, num_envs)
         bounds = np.linspace(0, num_envs, self.threads + 1).astype(int)

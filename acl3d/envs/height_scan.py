@@ -5,8 +5,8 @@ points laid out on a forward x lateral grid that turns with the body's heading (
 grid stays level when the body pitches or rolls), each reported relative to the root's height.
 Heights are interpolated bilinearly from the heightfield array itself (no ray casts): the cost
 is a few array operations for all points of all envs, whatever the terrain. Points off the field
-read its nearest edge. On the tracks the profile is the same across the track, so the scan sees
-it at every lateral offset.
+read its nearest edge. On the tracks and Parkour's ground the profile is the same across the
+track, so the scan sees it at every lateral offset.
 """
 
 from __future__ import annotations
@@ -15,52 +15,59 @@ import math
 
 import numpy as np
 
+from acl3d.envs.arena import TRACK_HALF_WIDTH
+
 FORWARD = np.linspace(-1.0, 3.0, 9)  # metres along the heading: 1 m behind to 3 m ahead
 LATERAL = np.linspace(-1.5, 1.5, 7)  # metres to the body's left (+) and right (-)
 MIN_NORM = 1e-12  # below this the body's forward axis has no horizontal heading
 
 
 class HeightScan:
-    """Heights around the root of a body on a regular heightfield grid.
+    """Heights around a body's root on its arena's heightfield: a task's terrain sensor.
 
     Args:
-        x_min, y_min: world position of the heightfield's first column and first row.
-        cell: metres between neighbouring points, along x and y.
-        root_id: the body whose position and heading the grid follows.
+        arena: the body's arena; a 2D field (`heights` (rows, cols)) or a track (one profile
+            `heights` (cols,), the same at every y).
         forward, lateral: the scan points' offsets in the heading frame (metres).
 
-    The readings (`nb_rays` of them, forward offsets varying fastest) are
+    `read` gives the `nb_rays` readings (forward offsets varying fastest):
     terrain height - root height, in metres.
     """
 
-    def __init__(
-        self,
-        x_min: float,
-        y_min: float,
-        cell: float,
-        root_id: int,
-        forward: np.ndarray = FORWARD,
-        lateral: np.ndarray = LATERAL,
-    ):
-        self.root_id = root_id
+    def __init__(self, arena, forward: np.ndarray = FORWARD, lateral: np.ndarray = LATERAL):
+        self.arena = arena
+        self.root_id = arena.bound.root_id
+        g = arena.grid
+        profile = np.ndim(arena.heights) == 1  # a track: rows across it are all the same
+        y_min = -TRACK_HALF_WIDTH if profile else -g.half_width
         dx, dy = np.meshgrid(np.asarray(forward, float), np.asarray(lateral, float))
-        inv_cell = 1.0 / float(cell)
+        inv_cell = 1.0 / float(g.cell)
         # offsets in grid cells: (x, y) of the forward axis and of the left axis, per point
         self._along = np.stack((dx.ravel(), dy.ravel())) * inv_cell
         self._across = np.stack((-dy.ravel(), dx.ravel())) * inv_cell
-        self._origin = np.array([[x_min], [y_min]])
+        self._origin = np.array([[g.x_min], [y_min]])
         self._inv_cell = inv_cell
         self.nb_rays = dx.size
         self._shape = (0, 0, 0)
+        self._profile_version, self._profile_rows = -1, np.zeros((2, 2))
 
-    def read(self, heights: np.ndarray, data) -> np.ndarray:
-        """One env: `heights` (rows, cols), the root read from MuJoCo `data`."""
+    def heights(self) -> np.ndarray:
+        """The arena's heights as (rows, cols); a track's profile as two equal rows."""
+        h = self.arena.heights
+        if h.ndim == 2:
+            return h
+        if self._profile_version != self.arena.version:
+            self._profile_rows = np.vstack((h, h))
+            self._profile_version = self.arena.version
+        return self._profile_rows
+
+    def read(self, model, data, origin) -> np.ndarray:
+        """One env's readings (the lidars' interface; `origin` is the root's position)."""
         r = data.xmat[self.root_id]
         a, b = float(r[0]), float(r[3])
         norm = max(math.sqrt(a * a + b * b), MIN_NORM)  # the same arithmetic as `read_batch`
-        origin = data.xpos[self.root_id]
         cos_sin = np.array((a / norm, b / norm)).reshape(2, 1, 1, 1)
-        return self._scan(heights[None], origin[None], cos_sin)[0]
+        return self._scan(self.heights()[None], origin[None], cos_sin)[0]
 
     def read_batch(
         self, heights: np.ndarray, origins: np.ndarray, heading: np.ndarray
@@ -70,7 +77,7 @@ class HeightScan:
         `heading` is the body's forward axis projected on the ground (the first column of its
         rotation matrix, x and y); it is normalised here. A body pointing straight up or down
         has no heading: its scan collapses onto its root. Every operation is element-wise per
-        env, so a row is bit-identical to `read` on the same env alone.
+        env, so a row is bit-identical to `read` on the same env alone (heights as `heights()` gives).
         """
         a, b = heading[:, 0], heading[:, 1]
         norm = np.maximum(np.sqrt(a * a + b * b), MIN_NORM)

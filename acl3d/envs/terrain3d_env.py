@@ -16,6 +16,7 @@ from acl3d.bodies.base import Body
 from acl3d.envs.profiles import TERRAIN3D
 from acl3d.envs.terrain3d_arena import Terrain3DArena
 from acl3d.envs.terrain3d_task import Terrain3DTask, make_sensor
+from acl3d.envs.track_composition import OBSERVATIONS
 from acl3d.envs.track_env import TrackEnv
 from acl3d.terrain.terrain3d import (
     Terrain3DGenerator,
@@ -23,8 +24,6 @@ from acl3d.terrain.terrain3d import (
     start_pad_for,
     terrain3d_task_space,
 )
-
-OBSERVATIONS = ("height_scan", "lidar")
 
 
 class Terrain3DEnv(TrackEnv):
@@ -94,9 +93,8 @@ class Terrain3DComposition:
         return Terrain3DArena(body, Terrain3DGenerator(start_pad_for(body.length)))
 
     def build_task(self, arena: Terrain3DArena) -> Terrain3DTask:
-        return Terrain3DTask(
-            arena.bound, make_sensor(self.observation, arena), arena, arena.generator.end_x
-        )
+        sensor = make_sensor(self.observation, arena)
+        return Terrain3DTask(arena.bound, sensor, arena.grid.half_width, arena.generator.end_x)
 
     def signature(self) -> str:
         return f" observation={self.observation}"

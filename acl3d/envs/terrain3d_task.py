@@ -46,9 +46,8 @@ def outcome(x, y, critical, end_x: float, half_width: float):
 class Terrain3DTask(TrackTask):
     """Per-step observation, reward and termination of one body on the 3D field."""
 
-    def __init__(self, bound: BoundBody, sensor, arena, end_x: float):
-        self.arena = arena
-        self.half_width = arena.grid.half_width
+    def __init__(self, bound: BoundBody, sensor, half_width: float, end_x: float):
+        self.half_width = half_width
         self.crossed = False
         super().__init__(bound, sensor, end_x)
 
@@ -62,11 +61,9 @@ class Terrain3DTask(TrackTask):
         return float(data.xpos[self.bound.root_id, 1]), float(head[0]), float(head[5])
 
     def observe(self, model, data, head, touched) -> np.ndarray:
-        if isinstance(self.lidar, HeightScan):
-            terrain = self.lidar.read(self.arena.heights, data)
-        else:
-            terrain = self.lidar.read(model, data, data.xpos[self.bound.root_id])
-        lateral = (data.xpos[self.bound.root_id, 1] / self.half_width,)
+        root = data.xpos[self.bound.root_id]
+        terrain = self.lidar.read(model, data, root)
+        lateral = (root[1] / self.half_width,)
         return np.concatenate(
             (head, self.motor_state(data, touched), self.grasp_state(data), terrain, lateral)
         ).astype(np.float32)
@@ -113,7 +110,4 @@ class Terrain3DTask(TrackTask):
 
 def make_sensor(observation: str, arena) -> HeightScan | Lidar:
     """The terrain sensor an observation name selects ("height_scan" or "lidar")."""
-    if observation == "height_scan":
-        g = arena.grid
-        return HeightScan(g.x_min, -g.half_width, g.cell, arena.bound.root_id)
-    return Lidar("down")
+    return HeightScan(arena) if observation == "height_scan" else Lidar("down")

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from acl3d import validation
 from acl3d.bodies.base import Body
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.arena import TrackArena
+from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import ProfileLidar
 from acl3d.envs.profiles import HEXAGON_TRACKS, STUMP_TRACKS
 from acl3d.envs.track_task import TrackTask
@@ -24,6 +26,8 @@ class TrackKind(NamedTuple):
     parameters: tuple[str, ...]
     profile: CurriculumProfile
 
+
+OBSERVATIONS = ("lidar", "height_scan")  # the terrain sensor: 10 sagittal rays or a height scan
 
 TRACKS = {
     "stump": TrackKind(("stump_height", "obstacle_spacing"), STUMP_TRACKS),
@@ -38,8 +42,11 @@ class TrackComposition:
     generator can build, and the arena and task it builds for a body.
     """
 
-    def __init__(self, track: str, task_parameters: tuple[str, ...] | None):
+    def __init__(
+        self, track: str, task_parameters: tuple[str, ...] | None, observation: str = "lidar"
+    ):
         self.track = track
+        self.observation = validation.choice("observation", observation, OBSERVATIONS)
         names = TRACKS[track].parameters if task_parameters is None else task_parameters
         self.task_space = track_task_space(names)
         self.profile = TRACKS[track].profile
@@ -52,8 +59,11 @@ class TrackComposition:
         return TrackArena(body, TrackGenerator(TrackGrid()))
 
     def build_task(self, arena: TrackArena) -> TrackTask:
+        if self.observation == "height_scan":
+            return TrackTask(arena.bound, HeightScan(arena))
         return TrackTask(arena.bound, ProfileLidar(arena, "down"))
 
     def signature(self) -> str:
-        """What a saved state must match beyond the body and model sizes (nothing more here)."""
-        return ""
+        """What a saved state must match beyond the body and model sizes (the sensor, if not
+        the lidar)."""
+        return "" if self.observation == "lidar" else f" observation={self.observation}"

@@ -50,6 +50,9 @@ class TrackEnv(gym.Env):
         body_options: options of the body (e.g. leg counts), validated by the body.
         frame_skip: physics steps per control step (timestep = 0.02 / frame_skip); default per body.
         render_mode, width, height, camera, quality: offscreen rendering ("fast" or "high").
+        observation: the terrain sensor: "lidar" (10 sagittal rays, TeachMyAgent's) or
+            "height_scan" (63 heights around the body in its heading frame,
+            `acl3d.envs.height_scan`).
 
     Every argument is checked before anything is built (ValueError naming it, its value and
     what is allowed). `get_state()` / `set_state()` snapshot and restore a running episode
@@ -71,6 +74,7 @@ class TrackEnv(gym.Env):
         height: int = 480,
         camera: str | None = None,
         quality: str = "fast",
+        observation: str = "lidar",
     ):
         validation.choice("track", track, list(TRACKS))
         self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
@@ -87,7 +91,7 @@ class TrackEnv(gym.Env):
             )
         body = self._make_body(body, planar, body_options)
         self._compose(
-            TrackComposition(track, task_parameters),
+            TrackComposition(track, task_parameters, observation),
             body,
             frame_skip,
             render_mode,
