@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 import inspect
 
+from acl3d.extras import optional_dependency
 from acl3d.teachers.base import RunFacts, Teacher, load_state, save_state
 
 # name -> "module:Class" or a registered class; modules are imported lazily so torch loads only
@@ -63,6 +64,9 @@ def teacher_class(name: str) -> type[Teacher]:
     if isinstance(entry, type):
         return entry
     module, _, attr = entry.partition(":")
+    if name in _REGISTRY:  # a shipped teacher: a missing extra says which to install
+        with optional_dependency(f"teacher {name!r}"):
+            return getattr(importlib.import_module(module), attr)
     try:
         cls = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as exc:
