@@ -58,10 +58,11 @@ def reset_ms(env, resets: int, rng: np.random.Generator) -> float:
 def scan_seconds(env, reads: int) -> float:
     """Seconds per height scan of the env's current state."""
     u = env.unwrapped
-    scan, heights, data = u.task.lidar, u.arena.heights, u.data
+    scan, model, data = u.task.lidar, u.model, u.data
+    origin = data.xpos[u.bound.root_id]
     t0 = time.perf_counter()
     for _ in range(reads):
-        scan.read(heights, data)
+        scan.read(model, data, origin)
     return (time.perf_counter() - t0) / reads
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 from acl3d.envs.arena import TRACK_HALF_WIDTH
 
@@ -41,14 +42,12 @@ class HeightScan:
         profile = np.ndim(arena.heights) == 1  # a track: rows across it are all the same
         y_min = -TRACK_HALF_WIDTH if profile else -g.half_width
         dx, dy = np.meshgrid(np.asarray(forward, float), np.asarray(lateral, float))
-        inv_cell = 1.0 / float(g.cell)
-        # offsets in grid cells: (x, y) of the forward axis and of the left axis, per point
-        self._along = np.stack((dx.ravel(), dy.ravel())) * inv_cell
-        self._across = np.stack((-dy.ravel(), dx.ravel())) * inv_cell
-        self._origin = np.array([[g.x_min], [y_min]])
-        self._inv_cell = inv_cell
+        self._inv_cell = 1.0 / float(g.cell)
+        # offsets in grid cells, (row, column) = (y, x), of the forward and left axes per point
+        self._along = np.stack((dy.ravel(), dx.ravel())) * self._inv_cell
+        self._across = np.stack((dx.ravel(), -dy.ravel())) * self._inv_cell
+        self._min = (y_min, g.x_min)
         self.nb_rays = dx.size
-        self._shape = (0, 0, 0)
         self._profile_version, self._profile_rows = -1, np.zeros((2, 2))
 
     def heights(self) -> np.ndarray:
@@ -66,8 +65,10 @@ class HeightScan:
         r = data.xmat[self.root_id]
         a, b = float(r[0]), float(r[3])
         norm = max(math.sqrt(a * a + b * b), MIN_NORM)  # the same arithmetic as `read_batch`
-        cos_sin = np.array((a / norm, b / norm)).reshape(2, 1, 1, 1)
-        return self._scan(self.heights()[None], origin[None], cos_sin)[0]
+        x, y, z = float(origin[0]), float(origin[1]), float(origin[2])
+        shift = np.array(((y - self._min[0]) * self._inv_cell, (x - self._min[1]) * self._inv_cell))
+        coords = (a / norm) * self._along + (b / norm) * self._across + shift[:, None]
+        return self._sample(self.heights(), coords) - z
 
     def read_batch(
         self, heights: np.ndarray, origins: np.ndarray, heading: np.ndarray
@@ -77,34 +78,29 @@ class HeightScan:
         `heading` is the body's forward axis projected on the ground (the first column of its
         rotation matrix, x and y); it is normalised here. A body pointing straight up or down
         has no heading: its scan collapses onto its root. Every operation is element-wise per
-        env, so a row is bit-identical to `read` on the same env alone (heights as `heights()` gives).
+        env, so a row is bit-identical to `read` on the same env alone (heights as `heights()`
+        gives).
         """
         a, b = heading[:, 0], heading[:, 1]
         norm = np.maximum(np.sqrt(a * a + b * b), MIN_NORM)
-        return self._scan(heights, origins, (heading / norm[:, None]).T[:, :, None, None])
+        shift = np.stack(
+            (
+                (origins[:, 1] - self._min[0]) * self._inv_cell,
+                (origins[:, 0] - self._min[1]) * self._inv_cell,
+            ),
+            axis=1,
+        )
+        coords = (
+            (a / norm)[:, None, None] * self._along
+            + (b / norm)[:, None, None] * self._across
+            + shift[:, :, None]
+        )
+        out = np.empty((len(origins), self.nb_rays))
+        for i in range(len(origins)):
+            out[i] = self._sample(heights[i], coords[i])
+        return out - origins[:, 2:3]
 
-    def _scan(self, heights: np.ndarray, origins: np.ndarray, cos_sin: np.ndarray) -> np.ndarray:
-        """Readings (N, P) for unit headings `cos_sin` (2, N, 1, 1)."""
-        n, rows, cols = heights.shape
-        if self._shape != (n, rows, cols):
-            self._setup(n, rows, cols)
-        # (N, 2, P) fractional grid coordinates (column, row) of the scan points
-        uv = cos_sin[0] * self._along
-        uv += cos_sin[1] * self._across
-        uv += (origins[:, :2, None] - self._origin) * self._inv_cell
-        np.maximum(uv, 0.0, out=uv)
-        np.minimum(uv, self._top, out=uv)
-        ij = np.minimum(uv.astype(np.int64), self._last)
-        w = uv - ij  # weights towards the next column / row
-        k = ij[:, 0] + cols * ij[:, 1] + self._env_offsets
-        c = heights.reshape(-1)[k[:, None, :] + self._corners]  # (N, 4, P)
-        edges = c[:, 0::2] + (c[:, 1::2] - c[:, 0::2]) * w[:, 0, None]
-        return edges[:, 0] + (edges[:, 1] - edges[:, 0]) * w[:, 1] - origins[:, 2:3]
-
-    def _setup(self, n: int, rows: int, cols: int) -> None:
-        """Constants of a heights array shape: clip bounds, corner offsets, env offsets."""
-        self._shape = (n, rows, cols)
-        self._top = np.array([[cols - 1.0], [rows - 1.0]])
-        self._last = np.array([[cols - 2], [rows - 2]])
-        self._corners = np.array([[0], [1], [cols], [cols + 1]])
-        self._env_offsets = (rows * cols) * np.arange(n)[:, None]
+    @staticmethod
+    def _sample(heights: np.ndarray, coords: np.ndarray) -> np.ndarray:
+        """Bilinear heights at fractional (row, column) coordinates; off the grid, its edge."""
+        return map_coordinates(heights, coords, order=1, mode="nearest", prefilter=False)

@@ -18,7 +18,7 @@ import numpy as np
 from acl3d import validation
 from acl3d.task_space import TaskParameter, TaskSpace
 
-CELL = 0.1  # metres between heightfield points, along x and y
+CELL = 0.2  # metres between heightfield points, along x and y (0.1 m doubled the contact cost)
 FIELD_HALF_WIDTH = 3.0  # metres: the field spans y in [-3, 3]; leaving it ends the episode
 COURSE_LENGTH = 20.0  # metres of terrain from the end of the start pad to the finish line
 RUN_OUT = 5.0  # metres of field after the finish line
