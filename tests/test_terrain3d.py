@@ -166,15 +166,15 @@ def test_leaving_the_field_fails_and_crossing_the_line_succeeds():
 def test_progress_pays_and_drift_and_heading_cost():
     env = gym.make(ENV_ID).unwrapped
     env.reset(seed=0, options={"task": {"block_height": 0.0}})
-    start = env.task.prev_shaping
+    start = env.rows.prev_shaping[0]
     _teleport(env, x=env.data.qpos[env.bound.root_qpos] + 1.0)
     env.step(np.zeros(env.action_space.shape))
-    forward = env.task.prev_shaping - start
+    forward = env.rows.prev_shaping[0] - start
     env.reset(seed=0)
     _teleport(env, x=env.data.qpos[env.bound.root_qpos] + 1.0, y=1.0)
     env.step(np.zeros(env.action_space.shape))
     assert forward == pytest.approx(15.0, abs=1.0)  # 15 per metre along x
-    assert env.task.prev_shaping - start == pytest.approx(forward - 5.0, abs=1.0)
+    assert env.rows.prev_shaping[0] - start == pytest.approx(forward - 5.0, abs=1.0)
 
 
 # ---------------------------------------------------------------------- height scan

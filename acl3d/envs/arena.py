@@ -16,6 +16,7 @@ import numpy as np
 from acl3d.assets import mjcf_path
 from acl3d.bodies.base import PREFIX, Body, BoundBody
 from acl3d.envs import env_state
+from acl3d.envs.track_task import touch_sensor_name
 from acl3d.terrain.tracks import (
     MAX_TERRAIN_HEIGHT,
     TERRAIN_STEP,
@@ -42,7 +43,8 @@ def resize_hfield(hfield: mujoco.MjsHField, ncol: int, size) -> None:
 
 
 def attach_body(spec: mujoco.MjSpec, body: Body, start_x: float, camera_distance: float) -> None:
-    """Attach `body` at its spawn point (start_x, 0, spawn height) with a camera following it."""
+    """Attach `body` at its spawn point (start_x, 0, spawn height) with a camera following it
+    and the touch sensors its task reads."""
     body_spec = body.spec()
     body_spec.body(body.root).add_camera(
         name="track",
@@ -52,6 +54,22 @@ def attach_body(spec: mujoco.MjSpec, body: Body, start_x: float, camera_distance
     )
     frame = spec.worldbody.add_frame(pos=[start_x, 0.0, body.spawn_height])
     spec.attach(body_spec, prefix=PREFIX, frame=frame)
+    add_touch_sensors(spec, body)
+
+
+def add_touch_sensors(spec: mujoco.MjSpec, body: Body) -> None:
+    """A contact sensor (number of contacts found) per geom whose contacts the task reads: the
+    motors' contact-flag geoms and the critical geoms. Sensors are part of every backend's
+    derived fields (`sensordata`), where MjData's contact list is not."""
+    geoms = [m.contact_geom for m in body.motors if m.contact_geom] + list(body.critical_geoms)
+    for geom in dict.fromkeys(geoms):
+        sensor = spec.add_sensor(
+            name=touch_sensor_name(PREFIX + geom),
+            type=mujoco.mjtSensor.mjSENS_CONTACT,
+            objtype=mujoco.mjtObj.mjOBJ_GEOM,
+            objname=PREFIX + geom,
+        )
+        sensor.intprm[:3] = [1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND), 0, 1]
 
 
 class Arena:

@@ -2,12 +2,18 @@
 
 `BatchedEnvs` is the engine under the Gymnasium vector env (`acl3d.envs.batched_vector`) and
 the Stable-Baselines3 vec env (`acl3d.envs.batched_sb3`). Each sub-env is a full single env
-(`TrackEnv` / `ParkourEnv`, built by the id's own entry point) with its own model, data, task,
-terrain and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i
-plays. Resets go through the sub-env's own `reset`; steps run the physics of all sub-envs on a
-small pool of long-lived threads (`mj_step` releases the GIL) and, on the tracks, compute
-observation, reward, termination and lidars for all envs at once (`TrackBatch`). Parkour's
-water, creepers and grasps stay per sub-env (its own step code, run on the same threads).
+(`TrackEnv` / `ParkourEnv`, built by the id's own entry point) with its own model, terrain, task
+and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i plays.
+Resets go through the sub-env's own `reset`.
+
+Tracks: the physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs'
+models, on its own C threads), and the task's step (`TrackTask.step`: observation, reward,
+termination, lidars, servo caps) runs once on (N, ...) arrays; each sub-env's running episode is
+its row of the batch's `EpisodeRows` (the sub-env holds a view of it). Between steps the batch
+rows hold the physics; `sync(i)` writes row i into sub-env i's own MjData before anything reads
+it (snapshots, rendering), `restored(i)` takes a sub-env's MjData back after it was set.
+Parkour: water, creepers and grasps are still stepped per sub-env (its own step code), on a
+small pool of long-lived threads (`mj_step` releases the GIL).
 The time limit is the registered one (TimeLimit semantics: truncated once 2000 steps are played).
 """
 
@@ -22,9 +28,9 @@ import numpy as np
 
 from acl3d import validation
 from acl3d.envs import env_id as resolve_env_id
-from acl3d.envs.batched_track import TrackBatch
 from acl3d.envs.lidar import ProfileLidar
-from acl3d.envs.track_task import SUCCESS_RETURN, TrackTask
+from acl3d.envs.physics import BatchPhysics
+from acl3d.envs.track_task import TrackTask
 
 MAX_ENVS = 4096
 
@@ -73,17 +79,28 @@ class BatchedEnvs:
         self.single_action_space = e.action_space
         self.action_size = e.action_space.shape[0]
         self.task_space = e.task_space
-        # tracks with lidars: array step; Parkour (water, creepers, grasps), height scans and
-        # 3D Terrain: each sub-env's own step code
-        arrays = type(e.task) is TrackTask and isinstance(e.task.lidar, ProfileLidar)
-        self._batch = TrackBatch(self.envs) if arrays else None
         self.elapsed = np.zeros(num_envs, dtype=np.int64)
         self.threads = min(threads, num_envs)
-        bounds = np.linspace(0, num_envs, self.threads + 1).astype(int)
+        # tracks with lidars: one array step; Parkour (water, creepers, grasps), height scans
+        # and 3D Terrain: each sub-env's own step code
+        self.physics = self.rows = None
+        if type(e.task) is TrackTask and isinstance(e.task.lidar, ProfileLidar):
+            self.task = e.task  # every sub-env's task computes the same; one steps them all
+            self.physics = BatchPhysics(
+                [env.model for env in self.envs], e.frame_skip, self.threads, e.task.physics_fields
+            )
+            self.rows = self.task.new_rows(num_envs)
+            for i, env in enumerate(self.envs):
+                env.rows = self.rows.row(i)
+            self._caps = [env.model.actuator_forcerange for env in self.envs]
+            self._success_return = e.curriculum_profile.success_return
+            self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
+            threads = 1  # the batch has its own threads
+        bounds = np.linspace(0, num_envs, min(threads, num_envs) + 1).astype(int)
         self._chunks = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
         self._pool = (
-            ThreadPoolExecutor(self.threads - 1, thread_name_prefix="acl3d-physics")
-            if self.threads > 1
+            ThreadPoolExecutor(len(self._chunks) - 1, thread_name_prefix="acl3d-physics")
+            if len(self._chunks) > 1
             else None
         )
         self._parkour_out: list = [None] * num_envs
@@ -93,8 +110,7 @@ class BatchedEnvs:
         """Reset sub-env i through its own `reset` (same RNG stream as a single env)."""
         obs, info = self.envs[i].reset(seed=seed, options=options)
         self.elapsed[i] = 0
-        if self._batch is not None:
-            self._batch.pull(i)
+        self.restored(i)
         return obs, info
 
     def reset(self, seed=None, options=None):
@@ -146,11 +162,12 @@ class BatchedEnvs:
     def step(self, actions):
         """(obs, rewards, terminated, truncated, infos list); no reset of finished sub-envs."""
         a = self.check_actions(actions)
-        if self._batch is not None:
-            self._batch.prepare(a)
-            self._run(self._batch.physics)
-            obs, rewards, terminated, unstable = self._batch.finish(a)
-            success = (self._batch.episode_return > SUCCESS_RETURN).tolist()
+        if self.physics is not None:
+            self.task.servo(a, self._caps, self.physics.controls)
+            self.physics.step()
+            self._unsynced[:] = True
+            obs, rewards, terminated, unstable = self.task.step(self.physics, a, self.rows)
+            success = (self.rows.episode_return > self._success_return).tolist()
             infos = [{"success": s} for s in success]
             for i in np.flatnonzero(unstable):
                 infos[i]["unstable"] = True
@@ -185,14 +202,16 @@ class BatchedEnvs:
 
     # ------------------------------------------------------------------ sub-env state
     def sync(self, i: int) -> None:
-        """Bring sub-env i's own attributes up to date (before reading or saving its state)."""
-        if self._batch is not None:
-            self._batch.push(i)
+        """Bring sub-env i's own MjData up to date (before reading, saving or rendering it)."""
+        if self.physics is not None and self._unsynced[i]:
+            self.physics.unload(i, self.envs[i].physics)
+            self._unsynced[i] = False
 
     def restored(self, i: int) -> None:
-        """Sub-env i's state was set on the env itself: take it into the arrays."""
-        if self._batch is not None:
-            self._batch.pull(i)
+        """Sub-env i's physics was reset or set on the env itself: take it into the batch."""
+        if self.physics is not None:
+            self.physics.load(i, self.envs[i].physics)
+            self._unsynced[i] = False
 
     def close(self) -> None:
         if self._pool is not None:

@@ -225,4 +225,8 @@ class BatchedVecEnv(VecEnv):
         return [False for _ in self._get_indices(indices)]
 
     def get_images(self):
-        return [s.env.render() for s in self.subenvs]
+        images = []
+        for i, s in enumerate(self.subenvs):
+            self.batch.sync(i)
+            images.append(s.env.render())
+        return images

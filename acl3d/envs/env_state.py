@@ -72,17 +72,50 @@ def scalar(state: Mapping, key: str, kind: str, low: float = -np.inf, high: floa
 
 # ---------------------------------------------------------------------- physics
 class PhysicsState:
-    """Steps the physics `nstep` substeps at a time and snapshots/restores it exactly."""
+    """Steps one env's physics `nstep` substeps at a time and snapshots/restores it exactly.
+
+    Also the physics backend of one env (N = 1, see `acl3d.envs.physics`): `controls`,
+    `field(name)` and `warnings` are (1, ...) views of its MjData.
+    """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, nstep: int):
         self.model, self.data, self.nstep = model, data, nstep
+        self.models = [model]
         self._start = np.zeros(mujoco.mj_stateSize(model, INTEGRATION))
         self.stepped = False
+        self.controls = data.ctrl[None]
+        self.warnings = data.warning.number[None]
+        self._fields: dict[str, np.ndarray] = {}
+
+    def field(self, name: str) -> np.ndarray:
+        """A live (1, ...) view of the MjData field `name`."""
+        view = self._fields.get(name)
+        if view is None:
+            view = self._fields[name] = getattr(self.data, name)[None]
+        return view
+
+    @property
+    def step_start(self) -> np.ndarray:
+        """The integration state the last step started from (read-only view)."""
+        view = self._start.view()
+        view.flags.writeable = False
+        return view
 
     def step(self) -> None:
         """`mj_step` x nstep, remembering the integration state it starts from."""
         mujoco.mj_getState(self.model, self.data, self._start, INTEGRATION)
         mujoco.mj_step(self.model, self.data, nstep=self.nstep)
+        self.stepped = True
+
+    def adopt(self, start: np.ndarray, now: np.ndarray, warnings: np.ndarray) -> None:
+        """Take a state stepped elsewhere (a batch row): replay the step from `start`, which
+        recomputes every derived field, then set `now` (what the replay gives) and `warnings`."""
+        m, d = self.model, self.data
+        mujoco.mj_setState(m, d, start, INTEGRATION)
+        mujoco.mj_step(m, d, nstep=self.nstep)
+        mujoco.mj_setState(m, d, now, INTEGRATION)
+        d.warning.number[:] = warnings
+        self._start[:] = start
         self.stepped = True
 
     def get(self) -> dict:

@@ -165,8 +165,9 @@ class ParkourTask(TrackTask):
     def extra_obs_size(self) -> int:
         return 2 + self.lidar.nb_rays  # under_water and dead flags, surface flags
 
-    def grasp_state(self, data: mujoco.MjData) -> np.ndarray:
-        return self.climbing.state() if self.climbing else self._grasp
+    def grasp_state(self) -> np.ndarray:
+        """Climbers' [touching, holding] per hand (`Climbing.state`); empty for other bodies."""
+        return self.climbing.state() if self.climbing else np.zeros(0)
 
     # ------------------------------------------------------------------ survival
     def begin_episode(self) -> None:
@@ -211,24 +212,30 @@ class ParkourTask(TrackTask):
         return self.dead
 
     # ------------------------------------------------------------------ observation
-    def observe(self, model, data, head, touched) -> np.ndarray:
-        lidar = self.lidar.read(model, data, data.xpos[self.bound.root_id])
-        flags = (float(self.under_water), float(self.dead))
-        return np.concatenate(
-            (
-                head,
-                flags,
-                self.motor_state(data, touched),
-                self.grasp_state(data),
-                lidar,
-                self.lidar.flags,
-            )
-        ).astype(np.float32)
+    # Parkour's rules run per env (N = 1): water, creepers and grasps read the env's MjData.
+    def observe(self, physics, rows) -> tuple[np.ndarray, np.ndarray]:
+        data = physics.data
+        obs = np.zeros((1, self.obs_size))
+        col = self.head_size
+        x = self.head(physics, obs[:, :col])
+        obs[0, col : col + 2] = (float(self.under_water), float(self.dead))
+        col += 2
+        self.motor_state(physics, obs[:, col : col + self._motor_size])
+        col += self._motor_size
+        grasp = self.grasp_state()
+        obs[0, col : col + len(grasp)] = grasp
+        col += len(grasp)
+        obs[0, col : col + self.lidar.nb_rays] = self.lidar.read(
+            physics.model, data, data.xpos[self.bound.root_id]
+        )
+        obs[0, col + self.lidar.nb_rays :] = self.lidar.flags
+        return x, obs
 
-    def reset(self, model, data) -> np.ndarray:
+    def reset_rows(self, physics, rows) -> np.ndarray:
         self.begin_episode()
-        self.under_water = bool(data.xpos[self.bound.root_id, 2] <= self.water.level)
-        return super().reset(model, data)
+        root_z = physics.data.xpos[self.bound.root_id, 2]
+        self.under_water = bool(root_z <= self.water.level)
+        return super().reset_rows(physics, rows)
 
     def critical_touch(self, data: mujoco.MjData) -> bool:
         """A critical part touches something other than the ceiling."""
@@ -239,22 +246,20 @@ class ParkourTask(TrackTask):
         other = pairs[:, ::-1]
         return bool((critical & (other != self.ceiling_geom)).any())
 
-    def step(self, model, data, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
-        """After physics: (observation, reward, terminated, crossed_the_end)."""
-        touched = self.update_contacts(data)
+    def outcome(self, physics, actions: np.ndarray, rows):
+        data = physics.data
         if self.climbing:
             self.climbing.after_step(data)
-        x, head = self.head_state(data)
-        shaping = self.shaping(x, head[0])
-        reward = shaping - self.prev_shaping
-        self.prev_shaping = shaping
-        if not self.dead:  # a dead body plays zero actions, which cost nothing
-            reward -= self.body.torque_cost_per_unit * float(np.minimum(np.abs(action), 1.0).sum())
+        alive = not self.dead  # a dead body plays zero actions, which cost nothing
         died = self._update_survival(data)
-        obs = self.observe(model, data, head, touched)
-        self.critical_contact = self.critical_touch(data)
-        if self.critical_contact or x < 0.0:
-            return obs, FAIL_REWARD, True, False
-        if x > self.end_x:
-            return obs, reward, True, True
-        return obs, reward, bool(died and self.end_on_death), False
+        x, obs = self.observe(physics, rows)
+        shaping = self.shaping(x, obs[:, 0])
+        reward = shaping - rows.prev_shaping
+        rows.prev_shaping[:] = shaping
+        if alive:
+            cost = np.minimum(np.abs(actions), 1.0).sum(axis=1)
+            reward -= self.body.torque_cost_per_unit * cost
+        rows.critical_contact[:] = self.critical_touch(data)
+        fail = rows.critical_contact | (x < 0.0)
+        terminated = fail | (x > self.end_x) | (died and self.end_on_death)
+        return obs, np.where(fail, FAIL_REWARD, reward), terminated

@@ -54,47 +54,36 @@ class Terrain3DTask(TrackTask):
     def extra_obs_size(self) -> int:
         return 1  # y / half width
 
-    def _pose(self, data, head) -> tuple[float, float, float]:
-        """(y, pitch, yaw) of the root; a planar body stays at y = 0 facing +x."""
+    def _pose(self, physics, obs) -> tuple:
+        """(y, pitch, yaw) of the root, (N,) each; a planar body stays at y = 0 facing +x."""
         if self.body.planar:
-            return 0.0, float(head[0]), 0.0
-        return float(data.xpos[self.bound.root_id, 1]), float(head[0]), float(head[5])
+            return 0.0, obs[:, 0], 0.0
+        return physics.field("xpos")[:, self.bound.root_id, 1], obs[:, 0], obs[:, 5]
 
-    def observe(self, model, data, head, touched) -> np.ndarray:
-        root = data.xpos[self.bound.root_id]
-        terrain = self.lidar.read(model, data, root)
-        lateral = (root[1] / self.half_width,)
-        return np.concatenate(
-            (head, self.motor_state(data, touched), self.grasp_state(data), terrain, lateral)
-        ).astype(np.float32)
+    def observe(self, physics, rows) -> tuple[np.ndarray, np.ndarray]:
+        x, obs = super().observe(physics, rows)
+        obs[:, -1] = physics.field("xpos")[:, self.bound.root_id, 1] / self.half_width
+        return x, obs
+
+    def potential(self, physics, x, obs) -> np.ndarray:
+        y, pitch, yaw = self._pose(physics, obs)
+        return shaping(x, y, pitch, yaw, self.body.head_angle_reward)
 
     def begin_episode(self) -> None:
         self.crossed = False
 
-    def reset(self, model, data) -> np.ndarray:
-        touched = self.update_contacts(data)
-        x, head = self.head_state(data)
-        y, pitch, yaw = self._pose(data, head)
-        self.prev_shaping = shaping(x, y, pitch, yaw, self.body.head_angle_reward)
-        return self.observe(model, data, head, touched)
-
-    def step(self, model, data, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
-        """After physics: (observation, reward, terminated, crossed the finish line)."""
-        touched = self.update_contacts(data)
-        x, head = self.head_state(data)
-        y, pitch, yaw = self._pose(data, head)
-        s = shaping(x, y, pitch, yaw, self.body.head_angle_reward)
-        reward = s - self.prev_shaping
-        self.prev_shaping = s
-        reward -= self.body.torque_cost_per_unit * float(np.minimum(np.abs(action), 1.0).sum())
-        obs = self.observe(model, data, head, touched)
-        critical = self.bound.critical_geom_ids
-        self.critical_contact = bool(len(critical) and touched[critical].any())
-        failed, crossed = outcome(x, y, self.critical_contact, self.end_x, self.half_width)
-        self.crossed = bool(crossed)
-        if failed:
-            return obs, FAIL_REWARD, True, False
-        return obs, reward, self.crossed, self.crossed
+    def outcome(self, physics, actions: np.ndarray, rows):
+        x, obs = self.observe(physics, rows)
+        s = self.potential(physics, x, obs)
+        reward = s - rows.prev_shaping
+        rows.prev_shaping[:] = s
+        reward -= self.body.torque_cost_per_unit * np.minimum(np.abs(actions), 1.0).sum(axis=1)
+        critical = self.touched(physics, self._critical_sensors).any(axis=1)
+        rows.critical_contact[:] = critical
+        y = self._pose(physics, obs)[0]
+        failed, crossed = outcome(x, y, critical, self.end_x, self.half_width)
+        self.crossed = bool(crossed[0])  # one env: 3D Terrain steps per env in a batch
+        return obs, np.where(failed, FAIL_REWARD, reward), failed | crossed
 
     # ------------------------------------------------------------------ exact snapshots
     def episode_state(self) -> dict:

@@ -22,7 +22,6 @@ from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs import env_state
 from acl3d.envs.arena import CONTROL_DT
 from acl3d.envs.track_composition import TRACKS, TrackComposition
-from acl3d.envs.track_task import SUCCESS_RETURN
 from acl3d.rendering import TrackRenderer
 from acl3d.task_space import TaskSpace
 from acl3d.viewer import HumanViewer, check_display
@@ -143,8 +142,8 @@ class TrackEnv(gym.Env):
             raise validation.fail("camera", camera, f"None or one of {cameras}")
         self.data = mujoco.MjData(self.model)
         self.physics = env_state.PhysicsState(self.model, self.data, frame_skip)
-        self._warning_counts = self.data.warning.number  # a live view
         self.task = composition.build_task(self.arena)
+        self.rows = self.task.new_rows(1)  # this episode's running numbers (see EpisodeRows)
 
         self.action_space = gym.spaces.Box(
             -1.0, 1.0, shape=(self.body.action_size,), dtype=np.float32
@@ -152,13 +151,9 @@ class TrackEnv(gym.Env):
         self.observation_space = gym.spaces.Box(
             -np.inf, np.inf, shape=(self.task.obs_size,), dtype=np.float32
         )
-        self._speeds = self.bound.speeds
-        self._forcerange = self.model.actuator_forcerange
-        self._ctrl_ids = self.bound.actuator_ids
-        self._nb_motors = len(self._speeds)
+        self._caps = [self.model.actuator_forcerange]
         self._task_vector = self.task_space.to_vector({})
-        self._episode_return = 0.0
-        self._warnings = 0
+        self._success_return = composition.profile.success_return
 
         self.render_mode = render_mode
         self._render_args = {**render_args, "camera": camera or self.arena.camera}
@@ -209,11 +204,11 @@ class TrackEnv(gym.Env):
         return {
             "signature": self._signature(),
             "task_vector": self._task_vector.copy(),
-            "episode_return": float(self._episode_return),
-            "instability_warnings": int(self._warnings),
+            "episode_return": float(self.rows.episode_return[0]),
+            "instability_warnings": int(self.rows.warnings[0]),
             "rng_seed": self._np_random_seed,
-            "task/prev_shaping": float(self.task.prev_shaping),
-            "task/critical_contact": bool(self.task.critical_contact),
+            "task/prev_shaping": float(self.rows.prev_shaping[0]),
+            "task/critical_contact": bool(self.rows.critical_contact[0]),
             **env_state.rng_state(self.np_random),
             **self.physics.get(),
             **self._episode_state(),
@@ -257,12 +252,12 @@ class TrackEnv(gym.Env):
 
     def _set_checked_state(self, s: dict) -> None:
         self._task_vector = s["task_vector"]
-        self._episode_return = s["episode_return"]
-        self._warnings = s["instability_warnings"]
+        self.rows.episode_return[0] = s["episode_return"]
+        self.rows.warnings[0] = s["instability_warnings"]
         self.np_random = s["rng"]
         self._np_random_seed = s["rng_seed"]
-        self.task.prev_shaping = s["task/prev_shaping"]
-        self.task.critical_contact = s["task/critical_contact"]
+        self.rows.prev_shaping[0] = s["task/prev_shaping"]
+        self.rows.critical_contact[0] = s["task/critical_contact"]
         self._set_episode_state(s["episode"])  # terrain first: the physics replay touches it
         self.physics.set(s["physics"])
 
@@ -288,6 +283,7 @@ class TrackEnv(gym.Env):
 
     def _set_episode_state(self, checked: dict) -> None:
         self.arena.set_episode_state(checked["arena"], self.data)
+        self.task.take_terrain(self.rows)
         self.task.set_episode_state(checked["task"])
 
     # ------------------------------------------------------------------ gymnasium API
@@ -307,16 +303,15 @@ class TrackEnv(gym.Env):
         if task is not None:
             self._task_vector = task
         self.arena.regenerate(self.get_task(), self.np_random)
+        self.task.take_terrain(self.rows)
         self.task.begin_episode()
         mujoco.mj_resetData(self.model, self.data)
         self.arena.place_body(self.data, self.np_random)
         mujoco.mj_forward(self.model, self.data)
-        self._episode_return = 0.0
-        self._warnings = 0
         # the original returns the obs after one idle step
         self._control_step(np.zeros(self.body.action_size))
         self.arena.settle(self.data, self._control_step)  # Parkour's climbers grasp
-        obs = self.task.reset(self.model, self.data)
+        obs = self.task.reset_rows(self.physics, self.rows)[0]
         if self.render_mode == "human":
             self.render()
         return obs, self._info(False)
@@ -331,12 +326,8 @@ class TrackEnv(gym.Env):
 
     def _after_physics(self, action: np.ndarray):
         """The step's result once physics ran (the batched env calls it per Parkour sub-env)."""
-        obs, reward, terminated, _ = self.task.step(self.model, self.data, action)
-        unstable = self._check_instability()
-        if unstable:
-            terminated = True
-        self._episode_return += reward
-        return obs, reward, terminated, False, self._info(unstable)
+        obs, reward, terminated, unstable = self.task.step(self.physics, action[None], self.rows)
+        return obs[0], float(reward[0]), bool(terminated[0]), False, self._info(unstable[0])
 
     def render(self):
         if self.render_mode == "human":  # MuJoCo's interactive viewer, paced to render_fps
@@ -368,26 +359,14 @@ class TrackEnv(gym.Env):
         self.physics.step()
 
     def _apply_action(self, action: np.ndarray) -> None:
-        """Velocity servos towards speed*sign(a) with torque capped at torque*|a| (Box2D motor
-        semantics), after the task's rules (Parkour: dead bodies play zeros) and the arena's
-        forces (Parkour: grasps released, water)."""
+        """The task's servos (`TrackTask.servo`), after the task's rules (Parkour: dead bodies
+        play zeros) and the arena's forces (Parkour: grasps released, water)."""
         action = self.task.played(action)
         self.arena.before_step(self.data, action)
-        motors = action[: self._nb_motors]
-        magnitude = np.minimum(np.abs(motors), 1.0) * self.body.torque
-        self._forcerange[self._ctrl_ids, 0] = -magnitude
-        self._forcerange[self._ctrl_ids, 1] = magnitude
-        self.data.ctrl[self._ctrl_ids] = self._speeds * np.sign(motors)
-
-    def _check_instability(self) -> bool:
-        """MuJoCo resets a diverged simulation and counts it; end the episode when that happens."""
-        count = int(self._warning_counts[mujoco.mjtWarning.mjWARN_BADQACC])
-        unstable = count > self._warnings
-        self._warnings = count
-        return unstable
+        self.task.servo(action[None], self._caps, self.physics.controls)
 
     def _info(self, unstable: bool) -> dict:
-        info = {"success": bool(self._episode_return > SUCCESS_RETURN)}
+        info = {"success": bool(self.rows.episode_return[0] > self._success_return)}
         if unstable:
             info["unstable"] = True
         return info

@@ -1,9 +1,25 @@
-"""The track task: observation assembly, reward, termination and success (body-agnostic).
+"""The track task: observation, reward, termination and success, for N envs at once.
 
 Follows TeachMyAgent §2.1: shaping = 130/30 * x_head - 5 * |angle| (angle term dropped for bodies
 without it), step reward = shaping difference - torque cost; a critical contact or going behind
 the track start replaces the step reward by -100 and terminates; crossing the end line
-terminates (success is judged by the return: > 230, reported at every step).
+terminates (success is judged by the return against the curriculum profile's success_return).
+
+One implementation of the step for one env and for many. Every method works on (N, ...) arrays:
+it reads the physics through a backend (`acl3d.envs.physics`: a single env's `PhysicsState` is
+N = 1, the batched env's `BatchPhysics` is N) and keeps each env's running episode in an
+`EpisodeRows` row. A single env is a batch of one; a sub-env of a batched env holds a view of
+its row of the batch's rows, so nothing is mirrored. Element by element the arithmetic is the
+same whatever N (reductions only along rows, `math.atan2` per element), so every row is
+bit-identical to the same env stepped alone.
+
+The interface an env's step uses: `obs_size`, `physics_fields`, `new_rows(n)`,
+`servo(actions, caps, controls)`, `reset_rows(physics, rows)` (first observation),
+`step(physics, actions, rows)`, `take_terrain(rows, i)`, and the per-env `begin_episode`,
+`played`, `episode_state` / `check_episode_state` / `set_episode_state`. A new task overrides
+the hooks it needs: `observe` (its observation layout), `sense` (its terrain sensor),
+`potential` (its shaping), `outcome` (its rules: reward and termination), as Parkour's and
+3D Terrain's tasks do.
 """
 
 from __future__ import annotations
@@ -17,14 +33,47 @@ from acl3d.bodies.base import BoundBody
 from acl3d.envs.lidar import Lidar
 from acl3d.terrain.tracks import END_X
 
-SUCCESS_RETURN = 230.0
 FAIL_REWARD = -100.0
 PROGRESS_GAIN = 130.0 / 30.0  # reward per metre of forward progress
 ANGLE_PENALTY = 5.0
+TOUCH_SENSOR_PREFIX = "touch_"  # contact sensors on the body's flagged and critical geoms
+_BADQACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+def touch_sensor_name(geom: str) -> str:
+    """The contact sensor that counts the contacts of the (prefixed) geom `geom`."""
+    return TOUCH_SENSOR_PREFIX + geom
+
+
+class EpisodeRows:
+    """The running episodes of N envs, one row each (see the module docstring).
+
+    prev_shaping: the last step's shaping; critical_contact: a critical part touched something
+    at the last step; episode_return: the running return; warnings: MuJoCo's count of diverged
+    steps seen so far; heights: each env's terrain profile (for the profile lidar; None if the
+    lidar reads the arena itself).
+    """
+
+    def __init__(self, n: int, heights: np.ndarray | None = None):
+        self.prev_shaping = np.zeros(n)
+        self.critical_contact = np.zeros(n, dtype=bool)
+        self.episode_return = np.zeros(n)
+        self.warnings = np.zeros(n, dtype=np.int64)
+        self.heights = heights
+
+    def row(self, i: int) -> EpisodeRows:
+        """Env i's row as an `EpisodeRows` of one whose arrays are views of these."""
+        out = EpisodeRows.__new__(EpisodeRows)
+        for name, value in vars(self).items():
+            setattr(out, name, None if value is None else value[i : i + 1])
+        return out
 
 
 class TrackTask:
-    """Per-step observation, reward and termination for one bound body."""
+    """Observation, reward and termination of envs of one bound body (see the module docstring)."""
+
+    # the MjData fields the step reads through `physics.field`
+    physics_fields: tuple[str, ...] = ("qpos", "qvel", "xpos", "xmat", "cvel", "sensordata")
 
     def __init__(self, bound: BoundBody, lidar: Lidar, end_x: float = END_X):
         self.bound = bound
@@ -33,100 +82,181 @@ class TrackTask:
         self.end_x = end_x
         self.head_size = 4 if self.body.planar else 9
         # climbers: [contact, grasping] per hand sensor, between the motor state and the lidars
-        self._grasp = np.zeros(2 * len(self.body.grasp_sensors))
+        self.grasp_size = 2 * len(self.body.grasp_sensors)
         self.obs_size = (
             self.head_size
             + bound.motor_state_size
-            + len(self._grasp)
+            + self.grasp_size
             + lidar.nb_rays
             + self.extra_obs_size()
         )
-        self._touched = np.zeros(bound.model.ngeom, dtype=bool)
-        # where each motor's entries sit in the motor state (a contact flag follows some angles/speeds)
+        model = bound.model
+        # where each motor's entries sit in the motor state (a contact flag follows some)
         width = 2 + bound.has_contact_flag.astype(int)
         starts = np.concatenate(([0], np.cumsum(width)[:-1]))
-        self._angle_pos, self._speed_pos = starts, starts + 1
-        self._contact_pos = (starts + 2)[bound.has_contact_flag]
+        self._motor_size = int(width.sum())
+        self._angle_cols, self._speed_cols = starts, starts + 1
+        self._contact_cols = (starts + 2)[bound.has_contact_flag]
         self._inv_speeds = 1.0 / bound.speeds
-        self._motor_buffer = np.zeros(int(width.sum()))
-        self.prev_shaping = 0.0
-        self.critical_contact = False
+        self._contact_sensors = self._sensor_adr(model, bound.contact_geom_ids)
+        self._critical_sensors = self._sensor_adr(model, bound.critical_geom_ids)
+        self._lidar_col = self.head_size + bound.motor_state_size + self.grasp_size
+        ids = bound.actuator_ids
+        self._ctrl_index = slice(None) if np.array_equal(ids, np.arange(model.nu)) else ids
+        self._nb_motors = len(bound.speeds)
+        self._root = bound.root_id
 
-    def grasp_state(self, data: mujoco.MjData) -> np.ndarray:
-        """Climbers' sensor state, 2 entries per `Body.grasp_sensors` item: [has_contact, has_grasp].
+    @staticmethod
+    def _sensor_adr(model: mujoco.MjModel, geom_ids: np.ndarray) -> np.ndarray:
+        """sensordata columns of the touch sensors of these geoms."""
+        names = [touch_sensor_name(model.geom(int(g)).name) for g in geom_ids]
+        return np.array([model.sensor(n).adr[0] for n in names], dtype=int)
 
-        Always 0 on tracks without graspable surfaces; tasks with a ceiling or creepers (Parkour)
-        override this to report their grasp logic. Empty for every other body.
-        """
-        return self._grasp
+    def grasp_state(self) -> np.ndarray:
+        """Climbers' sensor state, 2 entries per `Body.grasp_sensors` item: [has_contact,
+        has_grasp]; always 0 on tracks without graspable surfaces (Parkour reports its grasps).
+        Empty for every other body."""
+        return np.zeros(self.grasp_size)
 
     def extra_obs_size(self) -> int:
         """Hook for tasks that add observation entries after the lidars (Parkour's surface flags)."""
         return 0
 
-    # ------------------------------------------------------------------ physics readings
-    def update_contacts(self, data: mujoco.MjData) -> np.ndarray:
-        """Flags of geoms touching anything this step (bodies never collide with themselves)."""
-        touched = self._touched
-        touched[:] = False
-        if data.ncon:
-            touched[data.contact.geom[: data.ncon].ravel()] = True
-        return touched
+    def new_rows(self, n: int) -> EpisodeRows:
+        """Running-episode rows for n envs of this task."""
+        heights = self.lidar.batch_heights(n) if hasattr(self.lidar, "batch_heights") else None
+        return EpisodeRows(n, heights)
 
-    def head_state(self, data: mujoco.MjData) -> tuple[float, np.ndarray]:
-        """(x of the head, head observation): angle, 2*omega/50, 0.12*vx, 0.08*vz (+ 3D extras)."""
-        b = self.bound
-        r = data.xmat[b.root_id]  # row-major 3x3: columns are the body axes in the world
-        pitch = math.atan2(r[6], r[0])  # nose-up positive (rotation about -y)
-        omega = data.cvel[b.root_id, :3]  # world angular velocity
-        v = b.root_dof
-        if self.body.planar:
-            vx, vz = data.qvel[v], data.qvel[v + 1]
-            head = np.array([pitch, 2.0 * data.qvel[v + 2] / 50.0, 0.12 * vx, 0.08 * vz])
-        else:
-            vx, vy, vz = data.qvel[v : v + 3]
-            roll = math.atan2(r[7], r[8])
-            yaw = math.atan2(r[3], r[0])
-            head = np.array(
-                [
-                    pitch,
-                    -2.0 * omega[1] / 50.0,
-                    0.12 * vx,
-                    0.08 * vz,
-                    roll,
-                    yaw,
-                    0.12 * vy,
-                    2.0 * omega[0] / 50.0,
-                    2.0 * omega[2] / 50.0,
-                ]
-            )
-        return float(data.xpos[b.root_id, 0]), head
+    def take_terrain(self, rows: EpisodeRows, i: int = 0) -> None:
+        """Row i's env wrote a new terrain (reset or restore): the lidar reads it from its row."""
+        if rows.heights is not None:
+            heights = self.lidar.arena.heights
+            rows.heights[i, : len(heights)] = heights
 
-    def motor_state(self, data: mujoco.MjData, touched: np.ndarray) -> np.ndarray:
-        """Per motor [angle + correction, speed / servo speed, (contact flag)], as the original."""
-        b = self.bound
-        out = self._motor_buffer
-        out[self._angle_pos] = data.qpos[b.qpos_adr] + b.angle_correction
-        out[self._speed_pos] = data.qvel[b.dof_adr] * self._inv_speeds
-        out[self._contact_pos] = touched[b.contact_geom_ids]
-        return out
-
-    # ------------------------------------------------------------------ episode logic
-    def shaping(self, x: float, angle: float) -> float:
-        s = PROGRESS_GAIN * x
-        if self.body.head_angle_reward:
-            s -= ANGLE_PENALTY * abs(angle)
-        return s
+    # ------------------------------------------------------------------ actions
+    def servo(self, actions: np.ndarray, caps: list[np.ndarray], controls: np.ndarray) -> None:
+        """Velocity servos towards speed*sign(a) with torque capped at torque*|a| (Box2D motor
+        semantics): `caps[i]` is env i's `actuator_forcerange` (its model's), `controls` (N, nu)."""
+        motors = actions[:, : self._nb_motors]
+        magnitude = np.minimum(np.abs(motors), 1.0) * self.body.torque
+        index = self._ctrl_index
+        for cap, m in zip(caps, magnitude):
+            cap[index, 0] = -m
+            cap[index, 1] = m
+        controls[:, index] = self.bound.speeds * np.sign(motors)
 
     def begin_episode(self) -> None:
-        """Clear per-episode rules before the body is placed (a track task has none)."""
+        """Clear per-env episode rules before the body is placed (a track task has none)."""
 
     def played(self, action: np.ndarray) -> np.ndarray:
-        """The action the body plays (on a track: the one given)."""
+        """The action one env's body plays (on a track: the one given)."""
         return action
 
+    # ------------------------------------------------------------------ physics readings
+    def touched(self, physics, sensors: np.ndarray) -> np.ndarray:
+        """(N, len(sensors)) flags: the geoms of these touch sensors touch anything."""
+        return physics.field("sensordata")[:, sensors] > 0.0
+
+    def head(self, physics, out: np.ndarray) -> np.ndarray:
+        """Write the head observation into out (N, 4 or 9): angle, 2*omega/50, 0.12*vx,
+        0.08*vz (+ roll, yaw, 0.12*vy, 2*omega_x/50, 2*omega_z/50 for free 3D bodies); return
+        the x of the head (N,)."""
+        root = self._root
+        r = physics.field("xmat")[:, root]  # row-major 3x3: columns are the body axes
+        qv = physics.field("qvel")
+        v = self.bound.root_dof
+        # nose-up positive (rotation about -y); math.atan2 per element, as a single env
+        out[:, 0] = [math.atan2(a, b) for a, b in zip(r[:, 6].tolist(), r[:, 0].tolist())]
+        out[:, 2] = 0.12 * qv[:, v]
+        if self.body.planar:
+            out[:, 1] = 2.0 * qv[:, v + 2] / 50.0
+            out[:, 3] = 0.08 * qv[:, v + 1]
+        else:
+            omega = physics.field("cvel")[:, root]  # world angular velocity first
+            out[:, 1] = -2.0 * omega[:, 1] / 50.0
+            out[:, 3] = 0.08 * qv[:, v + 2]
+            out[:, 4] = [math.atan2(a, b) for a, b in zip(r[:, 7].tolist(), r[:, 8].tolist())]
+            out[:, 5] = [math.atan2(a, b) for a, b in zip(r[:, 3].tolist(), r[:, 0].tolist())]
+            out[:, 6] = 0.12 * qv[:, v + 1]
+            out[:, 7] = 2.0 * omega[:, 0] / 50.0
+            out[:, 8] = 2.0 * omega[:, 2] / 50.0
+        return physics.field("xpos")[:, root, 0]
+
+    def motor_state(self, physics, out: np.ndarray) -> None:
+        """Write the motor state into out (N, motor state): per motor [angle + correction,
+        speed / servo speed, (contact flag)]."""
+        b = self.bound
+        out[:, self._angle_cols] = physics.field("qpos")[:, b.qpos_adr] + b.angle_correction
+        out[:, self._speed_cols] = physics.field("qvel")[:, b.dof_adr] * self._inv_speeds
+        out[:, self._contact_cols] = self.touched(physics, self._contact_sensors)
+
+    # ------------------------------------------------------------------ episode logic
+    def shaping(self, x: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        s = PROGRESS_GAIN * x
+        if self.body.head_angle_reward:
+            s = s - ANGLE_PENALTY * np.abs(angle)
+        return s
+
+    def observe(self, physics, rows: EpisodeRows) -> tuple[np.ndarray, np.ndarray]:
+        """(x of the head (N,), observation (N, obs_size) float64): head, motor state, (zero)
+        grasp state, lidar fractions; Parkour adds its own."""
+        n = physics.controls.shape[0]
+        obs = np.zeros((n, self.obs_size))
+        x = self.head(physics, obs[:, : self.head_size])
+        self.motor_state(physics, obs[:, self.head_size : self.head_size + self._motor_size])
+        if self.grasp_size:
+            obs[:, self._lidar_col - self.grasp_size : self._lidar_col] = self.grasp_state()
+        obs[:, self._lidar_col : self._lidar_col + self.lidar.nb_rays] = self.sense(physics, rows)
+        return x, obs
+
+    def sense(self, physics, rows: EpisodeRows) -> np.ndarray:
+        """(N, nb_rays) terrain sensor readings: the profile lidar reads all envs at once from
+        their rows' heights; another sensor (`read(model, data, origin)`) reads one env."""
+        if rows.heights is not None:
+            return self.lidar.read_batch(rows.heights, physics.field("xpos")[:, self._root])
+        data = physics.data
+        return self.lidar.read(physics.model, data, data.xpos[self._root])[None]
+
+    def potential(self, physics, x: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """(N,) shaping whose differences reward a step, from the head's x and the observation."""
+        return self.shaping(x, obs[:, 0])
+
+    def reset_rows(self, physics, rows: EpisodeRows) -> np.ndarray:
+        """First observation (N, obs) float32 of episodes whose bodies were just placed."""
+        x, obs = self.observe(physics, rows)
+        rows.prev_shaping[:] = self.potential(physics, x, obs)
+        rows.critical_contact[:] = False
+        rows.episode_return[:] = 0.0
+        rows.warnings[:] = 0  # MuJoCo's reset cleared its counts: a diverged idle step counts
+        return obs.astype(np.float32)
+
+    def outcome(self, physics, actions: np.ndarray, rows: EpisodeRows):
+        """The task's rules after physics: (obs (N, obs) float64, reward (N,), terminated (N,))."""
+        x, obs = self.observe(physics, rows)
+        shaping = self.potential(physics, x, obs)
+        reward = shaping - rows.prev_shaping
+        rows.prev_shaping[:] = shaping
+        reward -= self.body.torque_cost_per_unit * np.minimum(np.abs(actions), 1.0).sum(axis=1)
+        if len(self._critical_sensors):
+            rows.critical_contact[:] = self.touched(physics, self._critical_sensors).any(axis=1)
+        fail = rows.critical_contact | (x < 0.0)
+        return obs, np.where(fail, FAIL_REWARD, reward), fail | (x > self.end_x)
+
+    def step(self, physics, actions: np.ndarray, rows: EpisodeRows):
+        """After physics: (obs (N, obs) float32, reward (N,), terminated (N,), unstable (N,)).
+
+        A simulation MuJoCo had to reset (diverged) ends its episode, flagged `unstable`.
+        """
+        obs, reward, terminated = self.outcome(physics, actions, rows)
+        warnings = physics.warnings[:, _BADQACC]
+        unstable = warnings > rows.warnings
+        rows.warnings[:] = warnings
+        rows.episode_return += reward
+        return obs.astype(np.float32), reward, terminated | unstable, unstable
+
+    # ------------------------------------------------------------------ exact snapshots
     def episode_state(self) -> dict:
-        """Per-episode rule state beyond the shaping and contact flag (none on a track)."""
+        """Per-env rule state beyond the rows (none on a track)."""
         return {}
 
     def check_episode_state(self, state) -> dict:
@@ -134,32 +264,3 @@ class TrackTask:
 
     def set_episode_state(self, checked: dict) -> None:
         """Restore what `check_episode_state` returned."""
-
-    def reset(self, model, data) -> np.ndarray:
-        touched = self.update_contacts(data)
-        x, head = self.head_state(data)
-        self.prev_shaping = self.shaping(x, head[0])
-        return self.observe(model, data, head, touched)
-
-    def observe(self, model, data, head, touched) -> np.ndarray:
-        lidar = self.lidar.read(model, data, data.xpos[self.bound.root_id])
-        return np.concatenate(
-            (head, self.motor_state(data, touched), self.grasp_state(data), lidar)
-        ).astype(np.float32)
-
-    def step(self, model, data, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
-        """After physics: (observation, reward, terminated, crossed_the_end)."""
-        touched = self.update_contacts(data)
-        x, head = self.head_state(data)
-        shaping = self.shaping(x, head[0])
-        reward = shaping - self.prev_shaping
-        self.prev_shaping = shaping
-        reward -= self.body.torque_cost_per_unit * float(np.minimum(np.abs(action), 1.0).sum())
-        obs = self.observe(model, data, head, touched)
-        critical = self.bound.critical_geom_ids
-        self.critical_contact = bool(len(critical) and touched[critical].any())
-        if self.critical_contact or x < 0.0:
-            return obs, FAIL_REWARD, True, False
-        if x > self.end_x:
-            return obs, reward, True, True
-        return obs, reward, False, False

@@ -32,7 +32,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from acl3d.envs.env_state import restore_wrappers
-from acl3d.envs.track_task import SUCCESS_RETURN as SUCCESS_THRESHOLD
+from acl3d.envs.profiles import SUCCESS_RETURN as SUCCESS_THRESHOLD
 
 INFO_KEY = "curriculum"
 ERROR_KEY = "acl3d_worker_error"

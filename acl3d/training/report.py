@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from acl3d.envs.track_task import SUCCESS_RETURN as MASTERED_THRESHOLD
+from acl3d.envs.profiles import SUCCESS_RETURN as MASTERED_THRESHOLD
 from acl3d.training.run_dir import RunDir, read_csv
 
 

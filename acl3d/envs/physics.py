@@ -1,0 +1,81 @@
+"""Physics backends: N MuJoCo simulations stepped together and read as (N, ...) arrays.
+
+The step arithmetic of the tracks (`acl3d.envs.track_task.TrackTask.step_rows`) touches the
+physics only through this interface, so the same code serves one env and a batch of them:
+
+* `controls`: (N, nu) actuator controls, written before `step()`;
+* `field(name)`: a live (N, ...) array of an MjData field: state (qpos, qvel) and the derived
+  fields of the last step (xpos, xmat, cvel, sensordata), which, as after `mj_step`, describe
+  the state the last substep started from;
+* `warnings`: (N, mjNWARNING) warning counts (MuJoCo resets a diverged simulation and counts it);
+* `models[i]`: simulation i's own compiled model, whose fields the envs write in place between
+  steps (heightfields, servo force caps, weld anchors): every env compiles its own model;
+* `step()`: `nstep` substeps of every simulation.
+
+Two backends implement it. `env_state.PhysicsState` is one env's MjData stepped by `mj_step`
+(N = 1; it also snapshots and restores exactly). `BatchPhysics` keeps N simulations as
+`mjSTATE_INTEGRATION` rows of `mujoco.batch.Batch`, which steps them all in one call on its own
+C thread pool, bit-identical to `mj_step` on each env's own MjData at any thread count. Between
+steps the rows are the simulations' state: a sub-env reset on its own MjData is `load`ed into
+its row, and a row is written back into the sub-env's MjData (`unload`) before anything reads
+that MjData (snapshots, rendering). A GPU backend (MuJoCo Warp) would implement the same
+interface: see docs/development.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import mujoco
+import mujoco.batch
+import numpy as np
+
+from acl3d.envs.env_state import INTEGRATION, PhysicsState
+
+
+class BatchPhysics:
+    """N simulations on `mujoco.batch.Batch`, simulation i on `models[i]`.
+
+    Args:
+        models: one compiled model per simulation, all of one MjData layout (the sub-envs'
+            models: same body and arena, different terrain and servo caps). The batch reads
+            them live, so writes to their fields take effect at the next step.
+        nstep: substeps per `step()` (the env's frame_skip).
+        threads: the batch's C threads (1: the caller's thread only).
+        fields: the MjData fields `field()` will be asked for (derived ones are copied out of
+            each step only once bound, so they are bound here).
+    """
+
+    def __init__(
+        self, models: Sequence[mujoco.MjModel], nstep: int, threads: int, fields: Sequence[str]
+    ):
+        self.models = list(models)
+        self.n, self.nstep = len(self.models), nstep
+        self.batch = mujoco.batch.Batch(self.models[0], self.n, nthread=threads)
+        self.batch.set_models(self.models)
+        self.state = self.batch.state  # (N, nstate): each simulation's integration state
+        self.start = np.zeros_like(self.state)  # the rows the last step started from
+        self.controls = self.batch.bind("ctrl")
+        self.warnings = self.batch.warning[:, :, 1]  # mjWarningStat: (lastinfo, number)
+        self._fields = {name: self.batch.bind(name) for name in fields}
+
+    def field(self, name: str) -> np.ndarray:
+        """Live (N, ...) array of an MjData field named in the constructor's `fields`."""
+        return self._fields[name]
+
+    def step(self) -> None:
+        """`nstep` substeps of every simulation, remembering the rows they started from."""
+        np.copyto(self.start, self.state)
+        self.batch.step(nstep=self.nstep)
+
+    def load(self, i: int, physics: PhysicsState) -> None:
+        """Make row i the state of `physics` (a sub-env's MjData, after its own reset or
+        restore), with the state its last step started from."""
+        mujoco.mj_getState(physics.model, physics.data, self.state[i], INTEGRATION)
+        self.start[i] = physics.step_start
+        self.warnings[i] = physics.data.warning.number
+
+    def unload(self, i: int, physics: PhysicsState) -> None:
+        """Write row i into `physics`'s MjData, derived fields included (its last step is
+        replayed from the row it started from)."""
+        physics.adopt(self.start[i], self.state[i], self.warnings[i])
