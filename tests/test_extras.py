@@ -136,15 +136,3 @@ def test_optional_dependency_leaves_other_import_errors_alone():
     assert not isinstance(info.value, MissingExtraError)
     with pytest.raises(MissingExtraError, match=r"acl3d\[campaign\]"), optional_dependency("x"):
         raise ModuleNotFoundError("No module named 'ray.util'", name="ray.util")
-
-
-def test_tensorboard_logging_can_be_switched_off(tmp_path):
-    from test_training_run import FAST
-
-    from acl3d.cli import main
-
-    out = tmp_path / "run"
-    assert main(["train", *FAST, "--steps", "256", "--n-envs", "2", "--no-tensorboard",
-                 "--out", str(out)]) == 0  # fmt: skip
-    assert (out / "final_model.zip").exists() and (out / "evals.csv").exists()
-    assert not list(out.rglob("events.out.tfevents*"))

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from acl3d.analysis import stats
-from acl3d.analysis.runs import Run, task_keys
+from acl3d.analysis.runs import METRICS, Run, task_keys
 
 
 @dataclass
@@ -83,6 +83,30 @@ class Comparison:
             if base is not None:
                 pairs.append((self.cells[(teacher, task)], base))
         return pairs
+
+    def data_warnings(self) -> list[str]:
+        """What makes these statistics meaningless or fragile, in words: every final score equal
+        (nothing to rank; another metric may separate the teachers) or cells of one run."""
+        notes = []
+        finals = np.concatenate([cell.final(self.metric) for cell in self.cells.values()])
+        if np.ptp(finals) == 0:
+            other = next(m for m in METRICS if m != self.metric)
+            notes.append(
+                f"every run's final {self.metric} is {finals[0]:g}: the intervals, tests and "
+                f"figures cannot separate the teachers; try --metric {other}"
+            )
+        alone = sorted(
+            f"{t} ({self.task_name(task)})"
+            for (t, task), c in self.cells.items()
+            if len(c.runs) < 2
+        )
+        if alone:
+            notes.append(
+                f"{len(alone)} cell(s) hold a single run ({', '.join(alone[:4])}"
+                f"{', ...' if len(alone) > 4 else ''}): bootstrap intervals and Welch's test need "
+                "several seeds per teacher (campaign --seeds)"
+            )
+        return notes
 
     # ------------------------------------------------------------------ statistics
     def aggregates(self, reps: int, seed: int) -> list[dict]:

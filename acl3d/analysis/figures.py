@@ -42,7 +42,14 @@ def curves(comp: Comparison, rows: list[dict], path: Path) -> Path:
             if not pts:
                 continue
             x = np.array([p["step"] for p in pts])
-            ax.plot(x, [p["mean"] for p in pts], color=colors[teacher], label=teacher)
+            ax.plot(
+                x,
+                [p["mean"] for p in pts],
+                "o-",
+                markersize=3,
+                color=colors[teacher],
+                label=teacher,
+            )
             ax.fill_between(x, [p["low"] for p in pts], [p["high"] for p in pts],
                             color=colors[teacher], alpha=0.2, linewidth=0)  # fmt: skip
         ax.set_title(task if len(tasks) > 1 else "mean over runs, 95% bootstrap band", fontsize=9)

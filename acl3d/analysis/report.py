@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import math
+import sys
 from pathlib import Path
 
 from acl3d.analysis import figures
@@ -76,6 +77,9 @@ def analyze(
         raise ValueError(f"reps must be an integer >= 100, got {reps!r}")
     runs = load_runs(root)
     comp = Comparison(runs, baseline, metric)
+    notes = comp.data_warnings()
+    for note in notes:  # before the bootstrap, which may take a while
+        print(f"[acl3d] warning: {note}", file=sys.stderr, flush=True)
     out = Path(out) if out is not None else Path(root) / "report"
     out.mkdir(parents=True, exist_ok=True)
 
@@ -93,7 +97,11 @@ def analyze(
         figures.performance_profiles(comp, reps, seed, out / "performance_profile.png"),
         *figures.radar(comp, out / "radar"),
     ]
-    (out / "report.md").write_text(_report(comp, runs, aggregates, final, over_steps, pngs, reps))
+    report = _report(comp, runs, aggregates, final, over_steps, pngs, reps)
+    if notes:
+        title, _, rest = report.partition("\n")
+        report = "\n".join([title, "", *(f"> **Warning**: {n}" for n in notes), rest])
+    (out / "report.md").write_text(report)
     return out
 
 

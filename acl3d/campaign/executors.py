@@ -9,6 +9,7 @@ with the executor's explanation.
 from __future__ import annotations
 
 import ctypes
+import logging
 import multiprocessing as mp
 import os
 import signal
@@ -154,6 +155,20 @@ def _ray_attempt(run_dir: str, options: dict, cpus: int) -> dict:
     return run_attempt(run_dir, options, cpus)
 
 
+class _TokenAuthNotice(logging.Filter):
+    """Drops Ray's warning that it turned token authentication on for a new local instance:
+    the secure default it announces is what a campaign wants, so the warning is only noise."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("Token authentication is enabled")
+
+
+def _quiet_token_auth_notice() -> None:
+    logger = logging.getLogger("ray._private.authentication.authentication_token_setup")
+    if not any(isinstance(f, _TokenAuthNotice) for f in logger.filters):
+        logger.addFilter(_TokenAuthNotice())
+
+
 class RayExecutor:
     """One Ray task per attempt, declaring `cpus` CPUs; a local Ray instance unless `address`."""
 
@@ -170,8 +185,9 @@ class RayExecutor:
             else:  # a local instance sized to the campaign, so runs never oversubscribe it
                 # Ray nices its workers to 15 by default: training runs are the real work here.
                 os.environ.setdefault("RAY_worker_niceness", "0")
+                _quiet_token_auth_notice()
                 local = (max_parallel or max(1, (os.cpu_count() or 1) // cpus)) * cpus
-                ray.init(num_cpus=local, **kwargs)
+                ray.init(address="local", num_cpus=local, **kwargs)  # never a stray cluster
         total = int(ray.cluster_resources().get("CPU", cpus))
         self.capacity = max_parallel or max(1, total // cpus)
         self._task = ray.remote(_ray_attempt)

@@ -16,7 +16,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     run.add_argument("spec", help="built-in spec name or a YAML file")
     run.add_argument("--out", required=True, help="campaign directory")
     _scaling_options(run)
-    run.add_argument("--executor", choices=("ray", "local"), default="ray")
+    run.add_argument(
+        "--executor",
+        choices=("ray", "local"),
+        default="ray",
+        help="ray (default: a local Ray instance, or --address) or local (spawned processes, "
+        "no Ray needed)",
+    )
     run.add_argument("--address", help="Ray cluster to join (default: a local Ray instance)")
     run.add_argument("--max-parallel", type=int, metavar="K", help="runs at the same time")
     run.add_argument(

@@ -10,11 +10,15 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import sys
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from acl3d.cli.test_set_options import add_test_set_arguments
+from acl3d.training.config import TrainConfig
 
 BARE_ZIP_SEED = 0
 BARE_ZIP_ENVS = 2
@@ -24,15 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "target", metavar="RUN_DIR|MODEL.zip", help="a run directory or an SB3 model zip"
     )
-    p.add_argument(
-        "--test-set",
-        help="grid, uniform or a .json/.csv file (default: the run's test set, else the controller default)",
-    )
-    p.add_argument(
-        "--nb-test-episodes",
-        type=int,
-        default=100,
-        help="size of a generated test set (default 100)",
+    add_test_set_arguments(
+        p, "the run's test set, else the environment's default set", TrainConfig().nb_test_episodes
     )
     p.add_argument("--episodes", type=int, default=1, help="episodes per test task (default 1)")
     p.add_argument("--env", help="track (default: the run's; required for a bare model zip)")
@@ -60,6 +57,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"seed of the evaluation envs (default: the run's evaluation seed, else {BARE_ZIP_SEED})",
     )
     p.add_argument("--out", help="write one CSV row per test episode here")
+    p.add_argument(
+        "--raw-observations",
+        action="store_true",
+        help="evaluate a PPO model whose normalisation statistics (MODEL_vecnormalize.json/.npz) "
+        "are missing on raw observations, with a warning, instead of refusing",
+    )
 
 
 @dataclass
@@ -103,6 +106,30 @@ def resolve_target(target, env: str | None, body: str | None) -> Target:
         raise ValueError("--env is required when evaluating a bare model zip")
     return Target(
         path, env, body or "classic_bipedal", {}, None, BARE_ZIP_SEED, BARE_ZIP_ENVS, True
+    )
+
+
+def check_normalization(model: Path, raw_observations: bool) -> None:
+    """A PPO model trained by acl3d sees normalised observations: without the statistics saved
+    beside it, its scores mean little, so it is refused unless `raw_observations` is asked."""
+    from acl3d.training import checkpoint, students
+
+    if checkpoint.observation_normalizer(model) is not None:
+        return
+    student = students.detect(model)
+    if not students.uses_vecnormalize(student):
+        return
+    stats = checkpoint.normalization_path(model).name + ".json/.npz"
+    if not raw_observations:
+        raise ValueError(
+            f"{model}: no normalisation statistics ({stats} beside it) for this "
+            f"{student.upper()} model, which was trained on normalised observations; copy them "
+            "beside the model, or pass --raw-observations to evaluate on raw observations"
+        )
+    print(
+        f"acl3d evaluate: warning: {model} has no {stats}; evaluating on raw observations "
+        "(the scores will differ from the run's)",
+        file=sys.stderr,
     )
 
 
@@ -152,6 +179,7 @@ def run(args) -> int:
     seed = t.seed if args.seed is None else args.seed
     n_envs = t.n_envs if args.n_envs is None else args.n_envs
     deterministic = t.deterministic if args.deterministic is None else args.deterministic
+    check_normalization(t.model, args.raw_observations)
     step = model_step(t.model)
     print(
         f"evaluating {t.model} (step {step}) on {test_set} ({len(tasks)} tasks x {args.episodes}), "

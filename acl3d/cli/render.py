@@ -84,7 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--fps", type=int, help="frames per second (default: real time / --every; curriculum 4)"
     )
     p.add_argument("--out", default="rollout.mp4", help="output .mp4, .gif or .png (strip)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
 def _check_counts(args) -> None:

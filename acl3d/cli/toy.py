@@ -21,8 +21,14 @@ def _param(text: str) -> tuple[str, object]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--teacher", default="alp-gmm", choices=TEACHERS)
-    parser.add_argument("--episodes", type=int, default=20000)
+    parser.add_argument(
+        "--teacher",
+        default="alp-gmm",
+        choices=TEACHERS,
+        metavar="TEACHER",
+        help=f"{', '.join(TEACHERS)} (default alp-gmm)",
+    )
+    parser.add_argument("--episodes", type=int, default=20000, help="episodes (default 20000)")
     parser.add_argument(
         "--seed", type=int, default=0, help="seeds both the teacher and the toy's reward noise"
     )
@@ -48,14 +54,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="teacher hyper-parameters (default: teachDeepRL's, as in its toy demo)",
     )
     parser.add_argument(
-        "--param",
+        "--teacher-param",
+        "--param",  # the older spelling
+        dest="param",
         type=_param,
         action="append",
         default=[],
-        metavar="KEY=VALUE",
-        help="override a teacher parameter (JSON value), repeatable",
+        metavar="K=V",
+        help="teacher keyword argument (JSON value), repeatable; as acl3d train --teacher-param",
     )
-    parser.add_argument("--score-every", type=int, default=1000)
+    parser.add_argument(
+        "--score-every",
+        type=int,
+        default=1000,
+        help="episodes between two prints of the %% of mastered cubes (default 1000)",
+    )
     parser.add_argument("--gif", default=None, help="write the sampling dynamics to this GIF")
     parser.add_argument("--gif-every", type=int, default=250, help="episodes per GIF frame")
 

@@ -10,8 +10,14 @@ from pathlib import Path
 
 import yaml
 
+from acl3d.bodies import BODIES
+from acl3d.cli.test_set_options import add_test_set_arguments
+from acl3d.envs import ENV_NAMES
+from acl3d.teachers import TEACHERS
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
-from acl3d.training.config import DEFAULT_N_ENVS
+from acl3d.training.config import BENCHMARK, DEFAULT_N_ENVS, TrainConfig
+
+_DEFAULTS = TrainConfig()
 
 _FLAGS = {  # store_true options: config field -> help
     "shuffle_dimensions": "cut each task dimension in 4 and shuffle the pieces (rugged difficulty)",
@@ -23,30 +29,50 @@ _FLAGS = {  # store_true options: config field -> help
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="YAML or TOML file holding any option below (CLI wins)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
-    g = p.add_argument_group("what to train")
-    g.add_argument(
-        "--env", help="track: stump-tracks (default), hexagon-tracks, ... or a Gymnasium id"
+    g = p.add_argument_group(
+        "what to train",
+        "With no option: an ALP-GMM curriculum (expert knowledge high) for a PPO student with the "
+        "fast preset on Stump Tracks, 2M steps, 25 test tasks; minutes on a laptop.",
     )
-    g.add_argument("--body", help="embodiment (default classic_bipedal)")
-    g.add_argument("--teacher", help="curriculum teacher: random (default), alp-gmm, ...")
-    g.add_argument("--student", help="sac (default) or ppo")
+    g.add_argument(
+        "--benchmark",
+        choices=tuple(BENCHMARK),
+        help="TeachMyAgent's protocol for this student: benchmark preset, 20M steps, 100 test "
+        "tasks, expert knowledge low (options given with it win)",
+    )
+    g.add_argument(
+        "--env",
+        help=f"environment: {', '.join(ENV_NAMES)} or a Gymnasium id (default {_DEFAULTS.env})",
+    )
+    g.add_argument("--body", help=f"embodiment: {', '.join(BODIES)} (default {_DEFAULTS.body})")
+    g.add_argument(
+        "--teacher", help=f"curriculum teacher: {', '.join(TEACHERS)} (default {_DEFAULTS.teacher})"
+    )
+    g.add_argument("--student", help=f"sac or ppo (default {_DEFAULTS.student})")
     g.add_argument(
         "--preset",
-        help="student hyperparameters: benchmark (TeachMyAgent, default) or fast (small nets for CPU)",
+        help="student hyperparameters: fast (small networks for CPUs) or benchmark "
+        f"(TeachMyAgent's) (default {_DEFAULTS.preset})",
     )
-    g.add_argument("--steps", type=_count, help="training environment steps, e.g. 2e6 (default)")
+    g.add_argument(
+        "--steps",
+        type=_count,
+        help=f"training environment steps (default {_DEFAULTS.steps:.0e})".replace("e+0", "e"),
+    )
     g.add_argument(
         "--n-envs",
         type=int,
         help=f"parallel training environments (default {DEFAULT_N_ENVS})",
     )
     g.add_argument("--seed", type=int, help="seed of teacher, student and environments (default 0)")
-    g.add_argument("--out", help="run directory to create")
+    g.add_argument(
+        "--out", help="run directory to create (default: a new runs/TEACHER-STUDENT-seedN)"
+    )
     g = p.add_argument_group("curriculum profile")
     g.add_argument(
         "--expert-knowledge",
         choices=EXPERT_KNOWLEDGE,
-        help="what the teacher may know about the task space (default low)",
+        help=f"what the teacher may know about the task space (default {_DEFAULTS.expert_knowledge})",
     )
     g.add_argument(
         "--reset-student-every",
@@ -89,15 +115,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         g.add_argument("--" + name.replace("_", "-"), action="store_true", default=None, help=text)
     g = p.add_argument_group("evaluation and checkpoints")
     g.add_argument(
-        "--eval-every", type=_count, help="steps between evaluations (default min(5e5, steps/5))"
+        "--eval-every",
+        type=_count,
+        help="steps between evaluations (default min(5e5, max(5e4, steps/5)): 5 per run from "
+        "250k to 2.5M steps)",
     )
     g.add_argument(
         "--eval-envs", type=int, help="parallel evaluation environments (default n-envs)"
     )
-    g.add_argument(
-        "--test-set", help="test tasks file (.npy/.csv/.json); default: the controller's"
+    add_test_set_arguments(
+        g, "the environment's default set", _DEFAULTS.nb_test_episodes, unset_is_none=True
     )
-    g.add_argument("--nb-test-episodes", type=int, help="size of the default test set (100)")
     g.add_argument(
         "--checkpoint-every", type=_count, help="steps between checkpoints (default eval-every)"
     )
@@ -140,7 +168,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="do not store the SAC replay buffer in checkpoints (resume then starts with an empty buffer)",
     )
-    g.add_argument("--quiet", dest="verbose", action="store_const", const=0, default=None)
+    g.add_argument(
+        "--quiet",
+        dest="verbose",
+        action="store_const",
+        const=0,
+        default=None,
+        help="print only warnings and the final line (SB3 verbose 0)",
+    )
 
 
 _EXCLUDE_EXPLORATORY = {"auto": "auto", "on": True, "off": False}
@@ -217,7 +252,8 @@ _COUNTS = (
 
 def options_from_args(args) -> dict:
     """Config file values, overridden by every option given on the command line."""
-    options = load_config_file(args.config) if args.config else {}
+    options = dict(BENCHMARK[args.benchmark]) if args.benchmark else {}
+    options.update(load_config_file(args.config) if args.config else {})
     simple = (
         "env", "body", "teacher", "student", "preset", "steps", "n_envs", "seed", "out",
         "expert_knowledge", "reset_student_every", "buffer_size", "eval_every", "eval_envs",
@@ -243,10 +279,24 @@ def options_from_args(args) -> dict:
     return options
 
 
+def default_run_dir(options: dict) -> str:
+    """runs/TEACHER-STUDENT-seedN, or the first of its -2, -3, ... variants not yet taken."""
+    config = TrainConfig.from_dict({k: v for k, v in options.items() if k != "out"})
+    base = Path("runs") / f"{config.teacher}-{config.student}-seed{config.seed}"
+    path, k = base, 1
+    while path.exists():
+        k += 1
+        path = base.with_name(f"{base.name}-{k}")
+    return str(path)
+
+
 def run(args) -> int:
     from acl3d.training import train
 
     options = options_from_args(args)
+    if not args.resume and not options.get("out"):
+        options["out"] = default_run_dir(options)
+        print(f"[acl3d] writing the run to {options['out']} (--out to choose)")
     try:
         result = train(resume=args.resume, **options) if args.resume else train(options)
     except KeyboardInterrupt:

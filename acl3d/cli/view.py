@@ -21,7 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", choices=("random", "zero"), default="random", help="without --model")
     p.add_argument("--task", default="", help='e.g. "stump_height=1.5" (default: a random task)')
     p.add_argument("--stochastic", action="store_true", help="sample the model's actions")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the first reset and the random tasks (0)"
+    )
     p.add_argument("--steps", type=int, help="stop after this many steps (default: never)")
 
 

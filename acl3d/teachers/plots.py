@@ -7,7 +7,7 @@ A teacher may define `plot_state() -> dict | None` describing its current distri
   {"kind": "gaussian", "mean": (d,), "covariance": (d, d)}  (1- and 2-sigma ellipses)
   {"kind": "lesson", "index": int, "tasks": (n, d)}  (a list of lessons, the current one marked)
   {"kind": "points", "points": (n, d), "values": (n,)}  (a level buffer coloured by score)
-"boxes" and "points" may carry a "label" for their colour bar.
+"gmm", "boxes" and "points" may carry a "label" for their colour bar.
 Anything else (or no plot_state) gives a plain scatter of the sampled tasks. Frames show the first
 two task dimensions (a 1-D space is drawn on a line) over an optional background grid, such as the
 toy environment's competence map.
@@ -109,10 +109,15 @@ def _draw_state(fig, ax, state: dict[str, Any] | None) -> str:
     kind = state.get("kind")
     if kind == "gmm":
         weights = np.asarray(state["weights"], dtype=np.float64)
-        norm = weights / weights.max() if weights.max() > 0 else np.zeros_like(weights)
+        norm = mpl.colors.Normalize(0.0, weights.max() if weights.max() > 0 else 1.0)
         cmap = mpl.colormaps["viridis"]
-        for mean, cov, w in zip(state["means"], state["covariances"], norm):
-            _ellipse(ax, mean, cov, 2.0, facecolor=cmap(w), edgecolor="k", alpha=0.6, lw=0.5)
+        for mean, cov, w in zip(state["means"], state["covariances"], weights):
+            _ellipse(ax, mean, cov, 2.0, facecolor=cmap(norm(w)), edgecolor="k", alpha=0.6, lw=0.5)
+        fig.colorbar(
+            mpl.cm.ScalarMappable(norm=norm, cmap=cmap),
+            ax=ax,
+            label=state.get("label", "Gaussian weight"),
+        )
         return f" | nb Gaussians: {len(weights)}"
     if kind == "boxes":
         boxes = state["boxes"]
@@ -164,7 +169,11 @@ def _draw_state(fig, ax, state: dict[str, Any] | None) -> str:
 def render_frame(
     frame: dict[str, Any], low, high, labels=("task[0]", "task[1]"), title: str = ""
 ) -> np.ndarray:
-    """One frame as an (H, W, 3) uint8 image."""
+    """One frame as an (H, W, 3) uint8 image.
+
+    The sampled tasks are coloured by their `values` on a colour scale drawn beside the plot:
+    `frame["value_range"]` (vmin, vmax) fixes it across the frames of an animation (else each
+    frame spans its own values), `frame["value_label"]` names it (default "return")."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -191,7 +200,10 @@ def render_frame(
     if tasks is not None and len(tasks):
         x, y = _xy(tasks)
         values = np.asarray(frame.get("values", np.zeros(len(tasks))))
-        ax.scatter(x, y, c=values, cmap="autumn_r", s=6, edgecolors="none", zorder=3)
+        vmin, vmax = frame.get("value_range") or (values.min(), values.max())
+        art = ax.scatter(x, y, c=values, cmap="autumn_r", vmin=vmin, vmax=vmax, s=6,
+                         edgecolors="none", zorder=3)  # fmt: skip
+        fig.colorbar(art, ax=ax, label=frame.get("value_label", "return"))
     ax.set_xlim(*x_lim)
     ax.set_ylim(*y_lim)
     ax.set_xlabel(labels[0])

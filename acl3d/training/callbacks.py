@@ -158,6 +158,12 @@ class EvaluationCallback(PeriodicCallback):
 
     def fire(self, step: int) -> None:
         s = self.session
+        if s.config.verbose:  # a pass can take minutes; the progress bar stands still meanwhile
+            print(
+                f"[acl3d] step {step}: evaluating on {s.controller.nb_test_episodes} test tasks "
+                f"({s.config.effective_eval_envs} envs)...",
+                flush=True,
+            )
         result = s.run_eval()
         summary = result.summary()
         self.evals.write(

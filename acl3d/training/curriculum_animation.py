@@ -36,6 +36,7 @@ def _gmm_states(bk: dict, dim: int, by_alp: bool) -> list[tuple[int, dict]]:
                     "means": m[:, :dim],
                     "covariances": c[:, :dim, :dim],
                     "weights": weights,
+                    "label": "ALP" if by_alp else "Gaussian weight",
                 },
             )
         )
@@ -126,6 +127,8 @@ def curriculum_frames(run_dir, frames: int = 40) -> tuple[list[dict], dict]:
                 "state": current[-1] if current else None,
                 "tasks": tasks[start:end],
                 "values": returns[start:end],
+                "value_range": (float(returns.min()), float(returns.max())),
+                "value_label": "episode return",
             }
         )
     facts = {

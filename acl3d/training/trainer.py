@@ -94,8 +94,11 @@ def train(
             "checkpoint_every": config.effective_checkpoint_every,
             "periodical_samples_every": config.effective_periodical_samples,
             "exclude_exploratory": session.exclude_exploratory,
+            "nb_test_episodes": session.controller.nb_test_episodes,
         },
     }
+    if resume_from is None:  # warnings: printed with --quiet too
+        _announce_evaluations(config, target, session.controller.test_tasks())
     if session.controller.marks_exploratory and config.verbose:
         how = (
             "excluded from" if session.exclude_exploratory else "kept in (exclude_exploratory off)"
@@ -170,6 +173,29 @@ def _target_steps(config: TrainConfig, start: int, finished: bool) -> int:
             flush=True,
         )
     return target
+
+
+def _announce_evaluations(config: TrainConfig, target: int, test_tasks) -> None:
+    """Say up front what the evaluations will be where the options alone do not tell: a default
+    test set of another size than asked (a grid keeps floor(n^(1/d)) points per dimension), or a
+    run too short for more than its final evaluation."""
+    n = len(test_tasks)
+    if config.test_set is None and n != config.nb_test_episodes:
+        varying = int(sum(len(set(column)) > 1 for column in zip(*test_tasks)))
+        points = round(n ** (1 / max(varying, 1)))
+        _note(
+            f"nb_test_episodes={config.nb_test_episodes}: the default test set is a grid of "
+            f"{points} points per varying dimension ({varying}): {n} test tasks"
+        )
+    if target < 2 * config.effective_eval_every:
+        _note(
+            f"steps={target} < 2 x eval_every={config.effective_eval_every}: one evaluation, at "
+            "the end of training; pass eval_every (--eval-every) for a learning curve"
+        )
+
+
+def _note(text: str) -> None:
+    print(f"[acl3d] {text}", file=sys.stderr, flush=True)
 
 
 def _interrupt_on_sigterm(signum, frame):
