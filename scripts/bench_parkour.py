@@ -1,6 +1,6 @@
 """Parkour speed: env.step for the biped, the climber and the fish; reset with a new task; water.
 
-Also renders one README image per body (--out DIR). Every number is measured in this run on
+Also renders one docs image per body (--out DIR). Every number is measured in this run on
 this machine; the original 2D Box2D Parkour runs ~6,200 steps/s with the biped and resets with a
 new task in ~6.5 ms on this machine class (reference: mujoco-notes.md). Run on an idle machine:
 
@@ -90,7 +90,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3000, help="env steps timed per body")
     parser.add_argument("--resets", type=int, default=50, help="resets with a new task timed")
-    parser.add_argument("--out", type=Path, default=None, help="write README images here")
+    parser.add_argument("--out", type=Path, default=None, help="write the docs images (docs/figures) here")
     args = parser.parse_args()
 
     print(f"original 2D Parkour (biped): ~{ORIGINAL_STEPS} steps/s, reset ~{ORIGINAL_RESET_MS} ms")

@@ -6,7 +6,7 @@ as wanted, on any variant (the teachDeepRL numbers recorded in that script exist
 plain and one unfeasible toy, with 3-5 seeds).
 
 Written for this project from the papers' and reference implementations' *behaviour*, deliberately
-keeping what acl3d changed or fixed (see the README's differences section):
+keeping what acl3d changed or fixed (see docs/differences.md):
 * raw task units and raw returns in the mixtures; sklearn's GaussianMixture (k-means init with
   Lloyd iterations, `random_state` = the teacher's seed at every fit, AIC);
 * tasks drawn from a Gaussian are clipped to the bounds; components picked in proportion to their

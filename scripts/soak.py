@@ -4,7 +4,7 @@ Three phases, RSS printed at intervals and the growth of each phase at its end:
 1. env steps with random actions and a new random task (uniform in the task space) at every
    reset, with a get_state()/set_state() round trip every `--state-every` resets;
 2. env create/reset/step/close cycles, alternating Stump Tracks, Hexagon Tracks and Parkour;
-3. offscreen renders (needs a GL backend: EGL or OSMesa, see the README).
+3. offscreen renders (needs a GL backend: EGL or OSMesa, see docs/rendering.md).
 
     python scripts/soak.py                                 # 1M steps, 2,000 cycles, 500 renders
     python scripts/soak.py --steps 300000 --cycles 500 --renders 100   # shorter

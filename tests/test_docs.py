@@ -122,3 +122,19 @@ def test_the_readme_test_command_is_what_ci_runs():
     ci = (ROOT / ".ci" / "run").read_text()
     command = 'python -m pip install -q torch==2.13.0 ".[dev]" && python -m pytest -q -n 2'
     assert command in readme and command in ci
+
+
+def _nav_pages(entries) -> set[str]:
+    pages = set()
+    for entry in entries:
+        for value in entry.values() if isinstance(entry, dict) else [entry]:
+            pages |= _nav_pages(value) if isinstance(value, list) else {value}
+    return pages
+
+
+def test_every_docs_page_is_in_the_site_navigation():
+    """A page missing from mkdocs.yml's nav fails `mkdocs build --strict` in CI: say it here."""
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    pages = {str(p.relative_to(ROOT / "docs")) for p in (ROOT / "docs").rglob("*.md")}
+    missing = sorted(pages - _nav_pages(config["nav"]))
+    assert not missing, f"add these pages to the nav of mkdocs.yml: {missing}"

@@ -7,7 +7,7 @@ ceiling, both divided by `terrain_cppn_scale`. The network has the original arch
 frozen random weights: truncated normal, std 2, cut at 2 std. The original weights are not
 available; acl3d draws its own from `numpy.random.default_rng(CPPN_SEED)`. Seed 26 was chosen as
 the best match, among seeds 0..199, to the original's ground/ceiling statistics over the medium
-input space (see the README); the terrains are of the same family, not the same.
+input space (see docs/environments.md); the terrains are of the same family, not the same.
 
 Vertical coordinates are metres with the start-pad ground at z = 0 (the original's 3.33 m
 TERRAIN_HEIGHT is subtracted everywhere, including in the water-level mapping).

@@ -87,7 +87,7 @@ def _ppo(preset: str, n_envs: int) -> dict[str, Any]:
         }
     # fast: 2048-step rollouts in minibatches of 256; from 16 envs on (the batched env's
     # default) 256 steps per env in minibatches of 512, i.e. half the gradient steps per sample:
-    # on 2 cores the flat track is mastered in less wall time that way (README, sanity run)
+    # on 2 cores the flat track is mastered in less wall time that way (docs/benchmarks.md, sanity run)
     many = n_envs >= MANY_ENVS
     return {
         **common,
