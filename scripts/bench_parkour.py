@@ -90,7 +90,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=3000, help="env steps timed per body")
     parser.add_argument("--resets", type=int, default=50, help="resets with a new task timed")
-    parser.add_argument("--out", type=Path, default=None, help="write the docs images (docs/figures) here")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="write the docs images (docs/figures) here"
+    )
     args = parser.parse_args()
 
     print(f"original 2D Parkour (biped): ~{ORIGINAL_STEPS} steps/s, reset ~{ORIGINAL_RESET_MS} ms")
