@@ -184,8 +184,8 @@ def _announce_evaluations(config: TrainConfig, target: int, test_tasks) -> None:
         varying = int(sum(len(set(column)) > 1 for column in zip(*test_tasks)))
         points = round(n ** (1 / max(varying, 1)))
         _note(
-            f"nb_test_episodes={config.nb_test_episodes}: the default test set is a grid of "
-            f"{points} points per varying dimension ({varying}): {n} test tasks"
+            f"nb_test_episodes={config.nb_test_episodes}: the default test set is a "
+            f"{' x '.join([str(points)] * varying)} grid: {n} test tasks"
         )
     if target < 2 * config.effective_eval_every:
         _note(
