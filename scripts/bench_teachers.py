@@ -19,12 +19,17 @@ episodes, a learner-value proxy); ADR, the oracle and terrain levels get toy thr
 `--reference` also runs the original algorithms (`scripts/reference_teachers.py`: ALP-GMM,
 Covar-GMM, RIAC as published, teachDeepRL defaults) on the same variants and seeds, and reports
 their final score and Welch's p-value for the difference: a comparison with the originals
-measured in the same run, on any variant, size or number of seeds.
+measured in the same run, on any variant, size or number of seeds. With `--component-shapes` it
+also compares the shapes of the fitted mixture components (ALP-GMM, Covar-GMM): the share of
+line-shaped ones (smallest principal task-space std < 1% of the range, largest > 5%) and the
+median smallest principal std, over every fit of every seed.
 
     python scripts/bench_teachers.py --teachers alp-gmm,covar-gmm,riac --preset teachdeeprl
     python scripts/bench_teachers.py --seeds 1 --episodes 5000 --variants unfeasible
     python scripts/bench_teachers.py --reference --seeds 12 --variants unfeasible \
         --teachers alp-gmm,covar-gmm,riac --preset teachdeeprl
+    python scripts/bench_teachers.py --component-shapes --seeds 3 --variants plain \
+        --teachers alp-gmm --preset teachdeeprl
 """
 
 from __future__ import annotations
@@ -72,6 +77,26 @@ def make_env(variant: str, seed: int, nb_dims: int, ratio: float) -> tuple[ToyEn
     return env, DimensionsShuffler(space.low, space.high, cuttings=4, seed=seed).forward
 
 
+def principal_stds(teacher, span: np.ndarray) -> np.ndarray | None:
+    """(components, task dims) principal standard deviations, in fractions of each range, of
+    every mixture the teacher fitted (None for teachers without mixtures)."""
+    covs = getattr(teacher, "fitted_covariances", None)  # the originals (reference_teachers)
+    if covs is None:
+        covs = teacher.bk.get("covariances") if hasattr(teacher, "bk") else None
+    if not covs:
+        return None
+    d = len(span)
+    task = np.concatenate([np.asarray(c)[:, :d, :d] for c in covs]) / np.outer(span, span)
+    return np.sqrt(np.clip(np.linalg.eigvalsh(task), 0.0, None))
+
+
+def shape_cells(stds: np.ndarray) -> str:
+    """Share of line-shaped components and median smallest principal std."""
+    smallest, largest = stds.min(axis=1), stds.max(axis=1)
+    line = 100.0 * np.mean((smallest < 0.01) & (largest > 0.05))
+    return f"{line:.1f}% | {np.median(smallest):.3f} | {len(stds)}"
+
+
 def bench_one(
     name: str,
     preset: str | None,
@@ -81,9 +106,10 @@ def bench_one(
     checkpoints,
     nb_dims,
     ratio,
-) -> tuple[list[float], float]:
-    """Scores at `checkpoints` and CPU per 1000 episodes of one run; `preset=None` runs the
-    original algorithm (`reference_teachers`) instead of acl3d's teacher."""
+) -> tuple[list[float], float, np.ndarray | None]:
+    """Scores at `checkpoints`, CPU per 1000 episodes and component shapes (`principal_stds`)
+    of one run; `preset=None` runs the original algorithm (`reference_teachers`) instead of
+    acl3d's teacher."""
     env, to_env = make_env(variant, seed, nb_dims, ratio)
     if preset is None:
         teacher = make_reference(name, env.task_space(), seed)
@@ -95,7 +121,9 @@ def bench_one(
     every = math.gcd(*checkpoints)
     result = run_teacher(teacher, env, episodes, score_every=every, to_env=to_env)
     by_episode = dict(zip(result.episodes, result.scores))
-    return [by_episode[c] for c in checkpoints], result.cpu_per_1000
+    space = env.task_space()
+    shapes = principal_stds(teacher, (space.high - space.low)[:nb_dims])
+    return [by_episode[c] for c in checkpoints], result.cpu_per_1000, shapes
 
 
 def effective_params(name: str, preset: str) -> dict:
@@ -155,6 +183,11 @@ def main(argv=None) -> int:
         action="store_true",
         help="also run the original algorithms on the same variants and seeds",
     )
+    parser.add_argument(
+        "--component-shapes",
+        action="store_true",
+        help="also compare the mixture teachers' component shapes with the originals'",
+    )
     args = parser.parse_args(argv)
     names = _names(args.teachers, TEACHERS, "teacher", parser)
     variants = _names(args.variants, VARIANTS, "variant", parser)
@@ -183,6 +216,8 @@ def main(argv=None) -> int:
     ]
     originals: dict[tuple, tuple] = {}  # (variant, teacher) -> (final scores per seed, CPU)
     done: dict[tuple, tuple] = {}  # a teacher the presets configure alike runs once
+    shapes: list[str] = []  # --component-shapes rows
+    with_originals = args.reference or args.component_shapes
     for variant in variants:
         for preset in presets:
             for name in available:
@@ -193,18 +228,22 @@ def main(argv=None) -> int:
                     scores = np.asarray([r[0] for r in runs])
                     cpu = float(np.mean([r[1] for r in runs]))
                     done[key] = (scores.mean(axis=0), scores.std(axis=0), cpu, scores[:, -1])
+                    if args.component_shapes:
+                        shapes.append(f"| {variant} | {name} | {preset} | {_shapes(runs)}")
                     print(
                         f"done {variant} {name} ({preset}) in {time.time() - t0:.0f} s",
                         file=sys.stderr,
                         flush=True,
                     )
                 mean, std, cpu, finals = done[key]
-                if args.reference and name in REFERENCES and (variant, name) not in originals:
+                if with_originals and name in REFERENCES and (variant, name) not in originals:
                     runs = run_seeds(name, None, variant, checkpoints, args)
                     originals[variant, name] = (
                         np.asarray([r[0][-1] for r in runs]),
                         float(np.mean([r[1] for r in runs])) if name in CPU_COMPARABLE else None,
                     )
+                    if args.component_shapes:
+                        shapes.append(f"| {variant} | {name} | original | {_shapes(runs)}")
                     print(f"done {variant} {name} (original)", file=sys.stderr, flush=True)
                 ref_s = REF_SCORE_20K.get(variant, {}).get(name) if standard else None
                 ref_c = REF_CPU_PER_1000.get(name)
@@ -221,7 +260,20 @@ def main(argv=None) -> int:
         " (plain: 5 seeds, unfeasible: 3 seeds)."
     )
     print("\n".join(rows))
+    if shapes:
+        print(
+            "\nMixture components over every fit and seed: line-shaped = smallest principal"
+            " task-space std < 0.01 of the range and largest > 0.05.\n"
+            "| variant | teacher | preset | line-shaped | median smallest std | components |\n"
+            "|---|---|---|---|---|---|"
+        )
+        print("\n".join(row for row in shapes if not row.endswith("– |")))
     return 0
+
+
+def _shapes(runs) -> str:
+    stds = [r[2] for r in runs if r[2] is not None]
+    return shape_cells(np.concatenate(stds)) + " |" if stds else "– |"
 
 
 if __name__ == "__main__":

@@ -86,6 +86,7 @@ class _MixtureReference(_Reference):
         self.potential_ks = list(potential_ks)
         self.rows: list[np.ndarray] = []
         self.gmm = None
+        self.fitted_covariances: list[np.ndarray] = []  # every kept fit's, for shape statistics
 
     def _maybe_fit(self) -> None:
         n = len(self.rows)
@@ -99,6 +100,7 @@ class _MixtureReference(_Reference):
                 for k in self.potential_ks
             ]
         self.gmm = fits[int(np.argmin([g.aic(x) for g in fits]))]
+        self.fitted_covariances.append(self.gmm.covariances_.copy())
 
     def _sample(self) -> np.ndarray:
         if len(self.rows) < self.fit_rate or self.rs.random_sample() < self.random_task_ratio:

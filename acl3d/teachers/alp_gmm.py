@@ -9,7 +9,9 @@ Differences from the originals (why): tasks are handled in [0, 1]-normalised coo
 non-degenerate dimensions only, and the ALP coordinate is divided by the range of returns seen so
 far, so the fit neither depends on the units of the task dimensions or of the returns (TeachMyAgent
 feeds raw returns) nor breaks on constant dimensions. The mixtures are fitted by the small EM in
-acl3d.teachers.gmm (same model and AIC as sklearn's GaussianMixture, about 10x less CPU).
+acl3d.teachers.gmm (same model, k-means initialisation and AIC as sklearn's GaussianMixture, about
+10x less CPU); `gmm_backend="sklearn"` fits with scikit-learn in raw task units and raw ALPs, as
+the originals (the nearest-neighbour ALP still uses normalised coordinates).
 """
 
 from __future__ import annotations
@@ -126,6 +128,7 @@ class ALPGMM(GMMTeacherBase):
         alp_buffer_size: int = 500,
         alp_max_size: int | None = None,
         initial_dist: dict | None = None,
+        gmm_backend: str = "acl3d",
     ):
         super().__init__(task_space, seed)
         self._init_gmm(
@@ -136,6 +139,7 @@ class ALPGMM(GMMTeacherBase):
             gmm_fitness_func,
             nb_em_init,
             initial_dist,
+            gmm_backend,
         )
         if not isinstance(alp_buffer_size, (int, np.integer)) or alp_buffer_size < 1:
             raise ValueError(f"alp_buffer_size must be an integer >= 1, got {alp_buffer_size!r}")
@@ -163,9 +167,10 @@ class ALPGMM(GMMTeacherBase):
     def _component_weights(self) -> np.ndarray:
         return np.maximum(self.gmm.means[:, -1], 0.0)
 
-    def _seed_columns(self, n_columns: int) -> np.ndarray:
-        """Seed the Gaussians by place only: the ALP column would otherwise steer the seeding."""
-        return np.arange(self.d_act)
+    def _original_units(self) -> tuple[np.ndarray, np.ndarray]:
+        active = self.active
+        scale = np.append(self.span[active], 1.0 / self._reward_scale())
+        return scale, np.append(self.mins[active], 0.0)
 
     def _extra_state(self) -> dict[str, Any]:
         return {

@@ -7,7 +7,8 @@ tasks are drawn from Gaussians chosen in proportion to it, plus `random_task_rat
 
 As in `alp_gmm`, tasks are fitted in [0, 1]-normalised coordinates over non-degenerate dimensions and
 returns are mapped to [0, 1] with the range of returns seen so far (TeachMyAgent feeds raw returns,
-which would let the return axis dominate the fit).
+which would let the return axis dominate the fit); `gmm_backend="sklearn"` fits with scikit-learn
+in raw task units and raw returns, as the originals.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ class CovarGMM(GMMTeacherBase):
         nb_em_init: int = 1,
         absolute_lp: bool = False,
         initial_dist: dict | None = None,
+        gmm_backend: str = "acl3d",
     ):
         super().__init__(task_space, seed)
         self._init_gmm(
@@ -48,6 +50,7 @@ class CovarGMM(GMMTeacherBase):
             gmm_fitness_func,
             nb_em_init,
             initial_dist,
+            gmm_backend,
         )
         self.absolute_lp = bool(absolute_lp)
         self.tasks_unit: list[np.ndarray] = []  # the last fit_rate normalised tasks
@@ -73,10 +76,10 @@ class CovarGMM(GMMTeacherBase):
         cov_tr = self.gmm.covariances[:, -2, -1]
         return np.abs(cov_tr) if self.absolute_lp else np.maximum(cov_tr, 0.0)
 
-    def _seed_columns(self, n_columns: int) -> np.ndarray:
-        """Seed on [task, return]: the time column is uniform by construction, it says nothing
-        about where a Gaussian belongs and only blurs the seeding distances."""
-        return np.delete(np.arange(n_columns), n_columns - 2)
+    def _original_units(self) -> tuple[np.ndarray, np.ndarray]:
+        active = self.active
+        scale = np.append(self.span[active], [1.0, 1.0 / self._reward_scale()])
+        return scale, np.append(self.mins[active], [0.0, self.r_min])
 
     def _extra_state(self) -> dict[str, Any]:
         return {

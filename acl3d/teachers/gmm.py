@@ -1,7 +1,9 @@
 """Gaussian mixtures for the GMM teachers (ALP-GMM, Covar-GMM): a small EM and the shared base.
 
-Same model and AIC/BIC as sklearn's GaussianMixture (full covariances, k-means++ init, reg_covar),
-about 10x less CPU: every EM iteration is two matrix products over expanded Mahalanobis terms.
+Same model, initialisation and AIC/BIC as sklearn's GaussianMixture (full covariances, k-means
+init over every column, reg_covar 1e-6, tol 1e-3), about 10x less CPU: every EM iteration is two
+matrix products over expanded Mahalanobis terms. `gmm_backend="sklearn"` fits with scikit-learn
+itself, in the originals' units, to compare with TeachMyAgent (the `sklearn` extra).
 `GMMTeacherBase` holds what both teachers share: bootstrap, random-task ratio, fitting every
 `fit_rate` episodes over [normalised task, progress columns], sampling a Gaussian in proportion
 to its progress weight.
@@ -10,6 +12,7 @@ to its progress weight.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -18,6 +21,7 @@ from acl3d import validation
 from acl3d.teachers.base import Teacher
 
 _FITNESS = ("aic", "bic", "aicc")
+GMM_BACKENDS = ("acl3d", "sklearn")
 _LOG_2PI = math.log(2.0 * math.pi)
 _EPS10 = 10.0 * np.finfo(np.float64).eps
 
@@ -42,6 +46,14 @@ class GaussianMixture:
 
     def state(self) -> dict[str, np.ndarray]:
         return {"weights": self.weights, "means": self.means, "covariances": self.covariances}
+
+    def affine(self, scale: np.ndarray, offset: np.ndarray) -> GaussianMixture:
+        """The mixture of `x * scale + offset` (per column) for x drawn from this one."""
+        return GaussianMixture(
+            self.weights,
+            self.means * scale + offset,
+            self.covariances * np.outer(scale, scale),
+        )
 
 
 def _log_gauss(x2t: np.ndarray, xt: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
@@ -68,24 +80,43 @@ def _m_step(x: np.ndarray, x2: np.ndarray, resp: np.ndarray, reg: np.ndarray):
     return nk / x.shape[0], means, covs + reg
 
 
-def _kmeanspp_resp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
-    """Hard responsibilities from k-means++ seeding (sklearn's "k-means++" initialisation)."""
-    n = x.shape[0]
-    centres = [x[rng.integers(n)]]
+def _kmeans_labels(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """Cluster labels of k-means as sklearn's GaussianMixture initialises it (init "kmeans").
+
+    Greedy k-means++ seeding (2 + ln k candidates per centre, the one that lowers the total
+    squared distance most is kept), then Lloyd iterations until the centres move less than
+    1e-4 x the mean column variance (at most 300), over every fitted column. Seeding alone, or
+    seeding on the task columns only, leaves clusters that EM shrinks onto a few aligned points
+    (e.g. tasks clipped onto a bound): degenerate, line-shaped components.
+    """
+    n = len(x)
+    trials = 2 + int(math.log(k))
+    centres = np.empty((k, x.shape[1]))
+    centres[0] = x[rng.integers(n)]
     d2 = ((x - centres[0]) ** 2).sum(axis=1)
-    for _ in range(1, k):
+    for c in range(1, k):
         total = d2.sum()
-        i = (
-            int(np.searchsorted(np.cumsum(d2), rng.random() * total))
-            if total > 0
-            else rng.integers(n)
-        )
-        centres.append(x[min(i, n - 1)])
-        d2 = np.minimum(d2, ((x - centres[-1]) ** 2).sum(axis=1))
-    dist = ((x[:, None, :] - np.asarray(centres)[None, :, :]) ** 2).sum(axis=2)
-    resp = np.zeros((n, k))
-    resp[np.arange(n), dist.argmin(axis=1)] = 1.0
-    return resp
+        if total > 0:
+            candidates = np.searchsorted(np.cumsum(d2), rng.random(trials) * total)
+            candidates = np.minimum(candidates, n - 1)
+        else:
+            candidates = rng.integers(n, size=trials)
+        to_candidates = ((x[None, :, :] - x[candidates][:, None, :]) ** 2).sum(axis=2)
+        closest = np.minimum(d2[None, :], to_candidates)
+        best = int(closest.sum(axis=1).argmin())
+        centres[c], d2 = x[candidates[best]], closest[best]
+    tol = 1e-4 * float(x.var(axis=0).mean())
+    ids = np.arange(k)[:, None]
+    for _ in range(300):
+        labels = ((centres**2).sum(axis=1)[None, :] - 2.0 * x @ centres.T).argmin(axis=1)
+        members = (labels[None, :] == ids).astype(np.float64)  # (k, n) one-hot
+        counts = members.sum(axis=1, keepdims=True)
+        moved = np.where(counts > 0, (members @ x) / np.maximum(counts, 1.0), centres)
+        shift = float(((moved - centres) ** 2).sum())
+        centres = moved
+        if shift <= tol:
+            break
+    return ((centres**2).sum(axis=1)[None, :] - 2.0 * x @ centres.T).argmin(axis=1)
 
 
 def fit_gmm(
@@ -97,20 +128,20 @@ def fit_gmm(
     max_iter: int = 100,
     tol: float = 1e-3,
     reg_covar: float = 1e-6,
-    seed_columns=None,
 ) -> tuple[GaussianMixture, float]:
     """EM for a full-covariance mixture; returns the best of `n_init` runs and its total log-lik.
 
-    `seed_columns` (indices, default all) are the columns the k-means++ seeding looks at: EM
-    itself is invariant to each column's scale, the Euclidean seeding is not.
+    Initialised from k-means labels over all columns, as sklearn's GaussianMixture.
     """
     best, best_ll = None, -np.inf
-    x2 = (x[:, :, None] * x[:, None, :]).reshape(len(x), -1)
+    n = len(x)
+    x2 = (x[:, :, None] * x[:, None, :]).reshape(n, -1)
     xt, x2t = np.ascontiguousarray(x.T), np.ascontiguousarray(x2.T)
     reg = reg_covar * np.eye(x.shape[1])
-    x_seed = x if seed_columns is None else x[:, seed_columns]
     for _ in range(n_init):
-        weights, means, covs = _m_step(x, x2, _kmeanspp_resp(x_seed, k, rng).T, reg)
+        resp = np.zeros((k, n))
+        resp[_kmeans_labels(x, k, rng), np.arange(n)] = 1.0
+        weights, means, covs = _m_step(x, x2, resp, reg)
         prev = -np.inf
         for _ in range(max_iter):
             log_p = _log_gauss(x2t, xt, means, covs) + np.log(weights)[:, None]
@@ -123,7 +154,7 @@ def fit_gmm(
             weights, means, covs = _m_step(x, x2, np.exp(log_p - log_norm), reg)
         if ll > best_ll:
             best, best_ll = (weights, means, covs), ll
-    return GaussianMixture(*best), best_ll * x.shape[0]
+    return GaussianMixture(*best), best_ll * n
 
 
 def gmm_fitness(name: str, log_lik: float, k: int, n: int, d: int) -> float:
@@ -139,13 +170,50 @@ def gmm_fitness(name: str, log_lik: float, k: int, n: int, d: int) -> float:
     return -2.0 * log_lik + 2.0 * n_params + penalty
 
 
-def fit_best_gmm(x, ks, rng, fitness: str, n_init: int, seed_columns=None) -> GaussianMixture:
-    """Fit one mixture per k and keep the fittest (k larger than the data size is skipped)."""
+def _sklearn_mixture_class():
+    """sklearn's GaussianMixture, imported only when the sklearn backend is chosen."""
+    try:
+        from sklearn.mixture import GaussianMixture as SklearnMixture
+    except ModuleNotFoundError as exc:
+        raise ModuleNotFoundError(
+            'gmm_backend="sklearn" needs scikit-learn, which is not installed: '
+            'pip install "acl3d[sklearn]"',
+            name=exc.name,
+        ) from exc
+    return SklearnMixture
+
+
+def fit_sklearn_gmm(x: np.ndarray, k: int, seed: int, n_init: int = 1):
+    """sklearn's fit as the originals call it: full covariances, random_state = the seed."""
+    from sklearn.exceptions import ConvergenceWarning
+    from threadpoolctl import threadpool_limits
+
+    # one thread: on a few hundred points, OpenMP k-means threads only add overhead (~100x
+    # slower on a loaded 2-core machine)
+    with warnings.catch_warnings(), threadpool_limits(1):
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        fit = _sklearn_mixture_class()(
+            k, covariance_type="full", random_state=seed, n_init=n_init
+        ).fit(x)
+    return GaussianMixture(fit.weights_, fit.means_, fit.covariances_), fit.score(x) * len(x)
+
+
+def fit_best_gmm(
+    x, ks, rng, fitness: str, n_init: int, backend: str = "acl3d", seed: int = 0
+) -> GaussianMixture:
+    """Fit one mixture per k and keep the fittest (k larger than the data size is skipped).
+
+    `backend="sklearn"` fits with scikit-learn's GaussianMixture(random_state=seed) instead of
+    the EM above (`rng` is then unused).
+    """
     best, best_score = None, np.inf
     for k in ks:
         if k > len(x):
             continue
-        gmm, ll = fit_gmm(x, int(k), rng, n_init=n_init, seed_columns=seed_columns)
+        if backend == "sklearn":
+            gmm, ll = fit_sklearn_gmm(x, int(k), seed, n_init)
+        else:
+            gmm, ll = fit_gmm(x, int(k), rng, n_init=n_init)
         score = gmm_fitness(fitness, ll, int(k), len(x), x.shape[1])
         if score < best_score:
             best, best_score = gmm, score
@@ -224,7 +292,13 @@ class GMMTeacherBase(Teacher):
         gmm_fitness_func,
         nb_em_init,
         initial_dist,
+        gmm_backend,
     ):
+        if gmm_backend not in GMM_BACKENDS:
+            raise ValueError(f"gmm_backend must be one of {GMM_BACKENDS}, got {gmm_backend!r}")
+        if gmm_backend == "sklearn":
+            _sklearn_mixture_class()  # a missing extra fails here, not at the first fit
+        self.gmm_backend = gmm_backend
         self.nb_bootstrap, self.potential_ks = check_common_params(
             fit_rate, nb_bootstrap, random_task_ratio, potential_ks, gmm_fitness_func, nb_em_init
         )
@@ -285,20 +359,29 @@ class GMMTeacherBase(Teacher):
     def _component_weights(self) -> np.ndarray:
         raise NotImplementedError
 
-    def _seed_columns(self, n_columns: int) -> np.ndarray:
-        """Columns the k-means++ seeding of each fit uses (see the subclasses for why)."""
-        return np.arange(n_columns)
+    def _original_units(self) -> tuple[np.ndarray, np.ndarray]:
+        """(scale, offset) per fitted column from the fit's units to the originals' (raw task
+        units, raw returns): the sklearn backend fits there, as TeachMyAgent does."""
+        raise NotImplementedError
 
     def _fit(self, data: np.ndarray) -> None:
         em_rng = np.random.default_rng(int(self.rng.integers(2**63)))
-        self.gmm = fit_best_gmm(
-            data,
-            self.potential_ks,
-            em_rng,
-            self.gmm_fitness_func,
-            self.nb_em_init,
-            self._seed_columns(data.shape[1]),
-        )
+        if self.gmm_backend == "sklearn":
+            scale, offset = self._original_units()
+            raw = fit_best_gmm(
+                data * scale + offset,
+                self.potential_ks,
+                em_rng,
+                self.gmm_fitness_func,
+                self.nb_em_init,
+                backend="sklearn",
+                seed=self.seed,
+            )
+            self.gmm = raw.affine(1.0 / scale, -offset / scale)
+        else:
+            self.gmm = fit_best_gmm(
+                data, self.potential_ks, em_rng, self.gmm_fitness_func, self.nb_em_init
+            )
         means, covs = self._in_task_units()
         self.bk["weights"].append(self.gmm.weights.copy())
         self.bk["means"].append(means)
