@@ -29,14 +29,21 @@ def fail(name: str, value, valid: str) -> ValueError:
     return ValueError(f"{name}={shown}; valid: {valid}")
 
 
+def _number(x: float) -> str:
+    """A bound as people read it: whole numbers in full (2147483647, not 2.14748e+09)."""
+    if isinstance(x, int) or (math.isfinite(x) and float(x).is_integer() and abs(x) < 1e16):
+        return str(int(x))
+    return f"{x:g}"
+
+
 def _interval(low: float, high: float) -> str:
     if low == -math.inf and high == math.inf:
         return ""
     if high == math.inf:
-        return f" >= {low:g}"
+        return f" >= {_number(low)}"
     if low == -math.inf:
-        return f" <= {high:g}"
-    return f" in [{low:g}, {high:g}]"
+        return f" <= {_number(high)}"
+    return f" in [{_number(low)}, {_number(high)}]"
 
 
 def is_real(value) -> bool:
@@ -85,7 +92,7 @@ def integer(
     allow_float: bool = False,
 ) -> int:
     """An int in [low, high]; with `allow_float`, an integral float (2e6) is accepted too."""
-    valid = f"an integer{_interval(low, high)}"
+    valid = f"an integer{_interval(low, high)}"  # whole-number bounds in full
     if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
         v = int(value)
     elif allow_float and isinstance(value, (float, np.floating)) and float(value).is_integer():

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acl3d import validation as check
 from acl3d.cli.test_set_options import add_test_set_arguments
 from acl3d.training.config import TrainConfig
 
@@ -155,16 +156,35 @@ def run_evaluation_at(run_dir: Path, step: int | None) -> dict | None:
     return {k: v[i] for k, v in cols.items()}
 
 
+def check_args(args) -> None:
+    """Bounds of the counts (memory, processes) and a writable --out, before any evaluation."""
+    from acl3d.envs.batched import MAX_ENVS
+    from acl3d.training.config import MAX_SEED, MAX_TEST_EPISODES
+    from acl3d.training.run_dir import check_writable_file
+
+    for name, high in (
+        ("episodes", MAX_TEST_EPISODES),
+        ("n_envs", MAX_ENVS),
+        ("nb_test_episodes", MAX_TEST_EPISODES),
+        ("seed", MAX_SEED),
+    ):
+        value = getattr(args, name)
+        if value is not None:
+            check.integer(f"--{name.replace('_', '-')}", value, 0 if name == "seed" else 1, high)
+    if args.out:
+        check_writable_file(Path(args.out), "--out")
+
+
 def run(args) -> int:
     from acl3d.teachers import test_sets
+    from acl3d.training.checkpoint import MODEL_MEMBERS
     from acl3d.training.evaluation import evaluate_saved_model
+    from acl3d.training.run_dir import check_zip
     from acl3d.training.workers import make_env
 
-    for name in ("episodes", "n_envs", "nb_test_episodes"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    check_args(args)
     t = resolve_target(args.target, args.env, args.body)
+    check_zip(t.model, MODEL_MEMBERS)
     probe = make_env(t.env, t.body, t.env_kwargs)  # also checks the env and body names
     try:
         space = probe.unwrapped.task_space

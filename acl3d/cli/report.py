@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -18,12 +19,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--video-every", type=int, default=2, help="keep every N-th frame (default 2)")
 
 
+def check_inputs(run_dir, out, video: bool) -> None:
+    """Read what the report needs (config, teacher dump, model) and check `out` before the first
+    PNG is written: a damaged run fails with the file's name and leaves no partial report."""
+    from acl3d.training.checkpoint import MODEL_MEMBERS
+    from acl3d.training.run_dir import RunDir, check_creatable_dir, check_zip
+
+    run = RunDir(run_dir)
+    run.read_config()
+    tasks = run.test_tasks()  # reads the teacher dump through
+    check_creatable_dir(Path(out) if out else run.path / "report", "--out")
+    if video:
+        if tasks is None:
+            raise ValueError(
+                f"run directory {str(run.path)!r} has no teacher dump with test tasks yet "
+                "(use --no-video for the plots)"
+            )
+        check_zip(run.best_model(), MODEL_MEMBERS)
+
+
 def run(args) -> int:
     from acl3d.training.report import write_report
 
     for name in ("video_tasks", "video_steps", "video_every"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    check_inputs(args.run_dir, args.out, args.video)
     written = write_report(
         args.run_dir,
         args.out,

@@ -6,6 +6,10 @@ Options come from TrainConfig defaults, then a YAML/TOML `--config` file, then t
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
+import re
+import sys
 from pathlib import Path
 
 import yaml
@@ -29,6 +33,11 @@ _FLAGS = {  # store_true options: config field -> help
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="YAML or TOML file holding any option below (CLI wins)")
     p.add_argument("--resume", metavar="RUN_DIR", help="continue this run from its last checkpoint")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start the run in --out afresh, deleting the run already there (not while it runs)",
+    )
     g = p.add_argument_group(
         "what to train",
         "With no option: an ALP-GMM curriculum (expert knowledge high) for a PPO student with the "
@@ -187,6 +196,8 @@ def _count(text: str) -> int:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number like 2e6, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number like 2e6, got {text!r}")
     if value != int(value):
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     return int(value)
@@ -198,7 +209,10 @@ def _key_values(items, what: str) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise ValueError(f"{what}: expected KEY=VALUE, got {item!r}")
-        out[key.strip()] = yaml.safe_load(value)
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ValueError(f"{what}: {item!r} has a value that is not valid YAML") from None
     return out
 
 
@@ -229,9 +243,14 @@ def load_config_file(path) -> dict:
         except ImportError:  # Python 3.10
             raise ValueError("TOML config files need Python >= 3.11; use YAML instead") from None
 
-        data = tomllib.loads(path.read_text())
+        parse, errors = tomllib.loads, tomllib.TOMLDecodeError
     else:
-        data = yaml.safe_load(path.read_text()) or {}
+        parse, errors = yaml.safe_load, yaml.YAMLError
+    try:
+        data = parse(path.read_text()) or {}
+    except (errors, OSError, UnicodeDecodeError) as exc:
+        where = " ".join(str(exc).split())  # the parser's position, on one line
+        raise ValueError(f"--config file {str(path)!r} cannot be read: {where}") from None
     if not isinstance(data, dict):
         raise ValueError(f"--config file {str(path)!r} must hold a mapping of options")
     options = {k.replace("-", "_"): v for k, v in data.items()}
@@ -290,18 +309,69 @@ def default_run_dir(options: dict) -> str:
     return str(path)
 
 
+# config fields that are mappings -> their repeatable option
+_MAPPING_OPTIONS = {
+    "env_kwargs": "--env-kwarg",
+    "student_params": "--student-param",
+    "teacher_params": "--teacher-param",
+    "bounds": "--bounds",
+}
+_FIELD_MESSAGE = re.compile(r"^(\w+)(?:\['([^']*)'\])?=")
+
+
+def _how_to_continue(run) -> str:
+    """What a stopped run can do next: resume if it has a checkpoint, else start again."""
+    if run.latest_checkpoint_name() is not None:
+        return f"continue with: acl3d train --resume {run.path}"
+    if run.exists():
+        return f"no checkpoint yet: start again with --overwrite --out {run.path}"
+    return "nothing was written"
+
+
+def option_message(message: str) -> str:
+    """A config check's message with the option's command-line spelling: `n_envs=0; ...` reads
+    `--n-envs=0; ...`, `student_params['gamma']=2; ...` reads `--student-param gamma=2; ...`."""
+    message = " ".join(message.split())  # one line
+    match = _FIELD_MESSAGE.match(message)
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    if match is None or match[1] not in fields:
+        return message
+    field, key = match[1], match[2]
+    if field in _MAPPING_OPTIONS and key is not None:
+        return f"{_MAPPING_OPTIONS[field]} {key}={message[match.end() :]}"
+    return f"--{field.replace('_', '-')}={message[match.end() :]}"
+
+
 def run(args) -> int:
     from acl3d.training import train
+    from acl3d.training.run_dir import RunDir, is_disk_full
 
     options = options_from_args(args)
     if not args.resume and not options.get("out"):
         options["out"] = default_run_dir(options)
         print(f"[acl3d] writing the run to {options['out']} (--out to choose)")
+    where = args.resume or options.get("out")
     try:
-        result = train(resume=args.resume, **options) if args.resume else train(options)
+        result = (
+            train(resume=args.resume, overwrite=args.overwrite, **options)
+            if args.resume
+            else train(options, overwrite=args.overwrite)
+        )
+    except ValueError as exc:
+        raise ValueError(option_message(str(exc))) from None
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        name = f" writing {exc.filename}" if exc.filename else ""
+        how = _how_to_continue(RunDir(where)) if where else ""
+        print(
+            f"acl3d train: error: no space left on device{name}; free some space, then {how}",
+            file=sys.stderr,
+        )
+        return 1
     except KeyboardInterrupt:
-        where = args.resume or options.get("out")
-        print(f"acl3d train: interrupted; continue with: acl3d train --resume {where}")
+        how = _how_to_continue(RunDir(where)) if where else "nothing was written"
+        print(f"acl3d train: interrupted; {how}")
         return 130
     final = result.final_eval or {}
     print(

@@ -19,6 +19,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from acl3d.teachers.base import load_state, save_state
 
 _RMS = ("mean", "var", "count")
+MODEL_MEMBERS = ("data", "policy.pth")  # what every SB3 model zip holds
 
 
 def normalization_path(model_path) -> Path:

@@ -9,6 +9,7 @@ allowed values; nothing is coerced silently (a count written 2e6 is the only flo
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -23,6 +24,10 @@ TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
 # Evaluation envs get their own seed, the same at every evaluation, so successive evaluations
 # differ only by the policy (not by the stump-height noise of the test tracks).
 EVAL_SEED_OFFSET = 7919
+# Bounds that protect the machine (memory, processes, threads) and the seeding libraries.
+MAX_TEST_EPISODES = 100_000  # a test pass of this many episodes already costs up to 2e8 steps
+MAX_SEED = 2**31 - 1  # numpy's legacy seeding takes < 2**32; derived seeds add small offsets
+MIN_WORKER_PROCESSES = 16  # worker processes allowed on any machine (else 4 per CPU core)
 
 # TeachMyAgent's protocol per student: its hyperparameters, 20M steps, 100 test tasks, and the
 # expert knowledge its tables call "low" (the options given with it still win).
@@ -134,6 +139,28 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
 
+# Options a resumed run may change (runtime settings, and `steps` to extend it). Not the vec env
+# kind or envs per worker: an in-process batched env pulls each task at its reset, worker
+# processes get theirs pushed one episode ahead, so the teacher sees a different order.
+RESUME_MAY_CHANGE = (
+    "steps", "progress_bar", "verbose", "start_method", "torch_threads", "eval_envs",
+    "tensorboard",
+)  # fmt: skip
+
+
+def fixed_settings(config: TrainConfig) -> dict:
+    """The settings a run keeps for life (what a checkpoint was trained with), in JSON form:
+    every option but those a resume may change and `out` (a run directory may be moved), with
+    the evaluation and snapshot schedule as the numbers the run uses."""
+    values = config.to_dict()
+    for name in (*RESUME_MAY_CHANGE, "out"):
+        values.pop(name)
+    values["eval_every"] = config.effective_eval_every
+    values["checkpoint_every"] = config.effective_checkpoint_every
+    values["periodical_samples_every"] = config.effective_periodical_samples
+    return json.loads(json.dumps(values))
+
+
 # ---------------------------------------------------------------------- validation
 _COUNTS = (
     "steps", "n_envs", "nb_test_episodes", "torch_threads", "eval_envs", "eval_every",
@@ -172,6 +199,7 @@ def validate(config: TrainConfig) -> None:
         value = getattr(config, name)
         if value is not None or name in _REQUIRED_COUNTS:
             check.count(name, value, minimum=0 if name in _MAY_BE_ZERO else 1)
+    _check_machine_bounds(config)
     for name in _FLAGS:
         check.flag(name, getattr(config, name))
     check.integer("verbose", config.verbose, 0, 2)
@@ -195,6 +223,73 @@ def validate(config: TrainConfig) -> None:
             "otherwise the student is never reset"
         )
     excludes_exploratory(config)
+
+
+def cpu_cores() -> int:
+    return os.cpu_count() or 1
+
+
+def _check_machine_bounds(config: TrainConfig) -> None:
+    """Upper bounds on counts that cost memory, processes or threads (the lower ones are above)."""
+    from acl3d.envs.batched import MAX_ENVS
+
+    cores = cpu_cores()
+    check.integer("n_envs", config.n_envs, 1, MAX_ENVS)
+    if config.eval_envs is not None:
+        check.integer("eval_envs", config.eval_envs, 1, MAX_ENVS)
+    check.integer("nb_test_episodes", config.nb_test_episodes, 1, MAX_TEST_EPISODES)
+    check.integer("torch_threads", config.torch_threads, 1, cores)
+    check.integer("seed", config.seed, 0, MAX_SEED)
+    most = max(MIN_WORKER_PROCESSES, 4 * cores)
+    for name, n_envs in (("n_envs", config.n_envs), ("eval_envs", config.effective_eval_envs)):
+        workers = worker_processes(config, n_envs)
+        if workers > most:
+            raise check.fail(
+                name,
+                n_envs,
+                f"at most {most} worker processes on this machine ({cores} CPU cores); "
+                f"vec_env={config.vec_env!r} with envs_per_worker={config.envs_per_worker} "
+                f"starts {workers} (use vec_env batched or a larger envs_per_worker)",
+            )
+    check_device(config.device)
+
+
+def worker_processes(config: TrainConfig, n_envs: int) -> int:
+    """How many worker processes `n_envs` envs of this config start (0: all in this process)."""
+    from acl3d.training.workers import is_batchable
+
+    batched = config.vec_env == "batched" or (config.vec_env == "auto" and is_batchable(config.env))
+    if batched:
+        per_worker = config.envs_per_worker
+        return 0 if per_worker is None or per_worker >= n_envs else -(-n_envs // per_worker)
+    if config.vec_env == "dummy" or (config.vec_env == "auto" and n_envs == 1):
+        return 0
+    return n_envs
+
+
+def check_device(device: str) -> None:
+    """A torch device this machine has: cpu, auto, cuda[:N] with that GPU, or mps where usable."""
+    import torch
+
+    valid = "cpu, auto, cuda, cuda:N or mps (where present)"
+    if device == "auto":
+        return
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise check.fail("device", device, valid) from None
+    if dev.type == "cpu":
+        return
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise check.fail("device", device, "cpu or auto (no CUDA GPU is visible)")
+        if dev.index is not None and dev.index >= count:
+            raise check.fail("device", device, f"cuda:0 to cuda:{count - 1}, cpu or auto")
+        return
+    if dev.type == "mps" and torch.backends.mps.is_available():
+        return
+    raise check.fail("device", device, valid)
 
 
 def excludes_exploratory(config: TrainConfig) -> bool:

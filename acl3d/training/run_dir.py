@@ -18,11 +18,18 @@ and renamed over its target, so a reader sees the old or the new file, never a m
 is written into `checkpoints/.partial_step_N/`, renamed to `step_N/` once complete and only then
 named in LATEST; a kill at any moment leaves LATEST on a complete checkpoint. CSV rows are
 flushed as written; a resume drops rows logged after its checkpoint (and a torn last row).
+
+One process at a time: a training process holds an exclusive OS lock (flock) on the run
+directory for as long as it works in it; the OS releases it when the process ends, however it
+ends, so a killed run can be resumed at once and a running one cannot be entered by a second.
+Temporary files a killed process leaves behind are removed by the next one that takes the lock.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
+import fcntl
 import json
 import os
 import platform
@@ -30,6 +37,8 @@ import shutil
 import subprocess
 import sys
 import traceback
+import zipfile
+import zlib
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
@@ -85,19 +94,114 @@ def atomic_replace(tmp: Path, path: Path) -> None:
     os.replace(tmp, path)
 
 
+# Temporary names of files being replaced (a killed writer leaves them; see remove_temp_files)
+def temp_path(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def temp_prefix(prefix: Path) -> Path:
+    """For files written as PREFIX + suffix(es): `_NAME_PID_tmp` + the same suffixes."""
+    return prefix.with_name(f"_{prefix.name}_{os.getpid()}_tmp")
+
+
+_TEMP_GLOBS = (".*.tmp", "_*_tmp.*")
+
+
+def remove_on_failure(paths: list[Path]) -> None:
+    for path in paths:
+        path.unlink(missing_ok=True)
+
+
 def atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    atomic_replace(tmp, path)
+    tmp = temp_path(path)
+    try:
+        tmp.write_text(text)
+        atomic_replace(tmp, path)
+    except BaseException:
+        remove_on_failure([tmp])
+        raise
 
 
 def atomic_state_files(prefix: Path, write: Callable[[Path], None]) -> None:
     """`write(tmp)` writes TMP.json + TMP.npz (acl3d's state format); both then replace
     PREFIX.json/.npz, the .npz first so the .json never names arrays that are not there yet."""
-    tmp = prefix.with_name(f"_{prefix.name}_{os.getpid()}_tmp")
-    write(tmp)
-    for suffix in (".npz", ".json"):
-        atomic_replace(tmp.with_suffix(suffix), prefix.with_suffix(suffix))
+    tmp = temp_prefix(prefix)
+    try:
+        write(tmp)
+        for suffix in (".npz", ".json"):
+            atomic_replace(tmp.with_suffix(suffix), prefix.with_suffix(suffix))
+    except BaseException:
+        remove_on_failure([tmp.with_suffix(".npz"), tmp.with_suffix(".json")])
+        raise
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
+def read_state(prefix: Path) -> dict:
+    """`load_state` of a run's PREFIX.json/.npz; a missing, truncated or corrupt file is a
+    ValueError naming it."""
+    try:
+        return load_state(prefix)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{exc.filename} is missing") from None
+    except Exception as exc:  # json, zip, zlib and numpy each raise their own kind
+        raise ValueError(
+            f"{prefix}.json/.npz cannot be read (truncated or corrupt): {type(exc).__name__}: {exc}"
+        ) from None
+
+
+def check_zip(path: Path, members: tuple[str, ...] = ()) -> None:
+    """A complete zip holding `members` (every member's CRC checked): ValueError naming the
+    file otherwise. Name the members: the half of a truncated SB3 zip can read as the zip
+    stored inside it (its policy.pth)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            missing = sorted(set(members) - set(z.namelist()))
+            bad = z.testzip()
+    except FileNotFoundError:
+        raise ValueError(f"{path} is missing") from None
+    except (OSError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
+        raise ValueError(f"{path} is truncated or corrupt: {exc}") from None
+    if missing or bad is not None:
+        why = f"member {bad!r} fails its CRC check" if bad else f"no {', '.join(missing)}"
+        raise ValueError(f"{path} is truncated or corrupt: {why}")
+
+
+def check_creatable_dir(path: Path, name: str) -> None:
+    """That `path` is, or can be made, a folder this process writes in (checked before any
+    work, so that a run or a report does not fail at its first write)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{name}={str(path)!r} is a file; valid: a folder")
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{name}={str(path)!r} cannot be created: {str(existing)!r} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"{name}={str(path)!r} cannot be written: {str(existing)!r} is read-only")
+
+
+def check_writable_file(path: Path, name: str) -> None:
+    """That the file `path` can be written: its folder exists and is writable."""
+    path = Path(path)
+    folder = path.parent
+    if path.is_dir():
+        raise ValueError(f"{name}={str(path)!r} is a folder; valid: a file path")
+    if not folder.is_dir():
+        raise ValueError(f"{name}={str(path)!r}: folder {str(folder)!r} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ValueError(f"{name}={str(path)!r} cannot be written (read-only)")
+
+
+class DamagedCheckpoint(ValueError):
+    """A checkpoint file is missing, truncated or corrupt (a resume falls back past it)."""
+
+
+class RunInUseError(ValueError):
+    """Another process holds the run directory's lock."""
 
 
 class CsvLog:
@@ -161,9 +265,18 @@ def read_csv(path: Path) -> dict[str, list[float]]:
     return cols
 
 
+# What `acl3d train` writes in a run directory (`clear` removes these and nothing else)
+_RUN_ENTRIES = (
+    "config.yaml", "config.json", "status.json", "evals.csv", "evals_tasks.csv", "episodes.csv",
+    "teacher.json", "teacher.npz", "tb", "checkpoints", "final_model.zip",
+    "final_model_vecnormalize.json", "final_model_vecnormalize.npz",
+)  # fmt: skip
+
+
 class RunDir:
     def __init__(self, path):
         self.path = Path(path)
+        self._lock_fd: int | None = None
 
     # ------------------------------------------------------------------ layout
     @property
@@ -201,18 +314,80 @@ class RunDir:
     def exists(self) -> bool:
         return self.config_yaml.exists()
 
+    # ------------------------------------------------------------------ one process at a time
+    def lock(self) -> None:
+        """Take the run directory's exclusive lock (RunInUseError if another process has it)."""
+        if self._lock_fd is not None:
+            return
+        fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EACCES):
+                raise
+            raise RunInUseError(self._in_use_message()) from None
+        self._lock_fd = fd
+
+    def unlock(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    def _in_use_message(self) -> str:
+        try:
+            pid = json.loads((self.path / "status.json").read_text()).get("pid")
+        except (OSError, ValueError):
+            pid = None
+        who = f"process {pid}" if pid else "another process"
+        return (
+            f"run directory {str(self.path)!r} is in use by {who} (it holds the run's lock); "
+            "wait for it to end or stop it, then try again"
+        )
+
+    def remove_temp_files(self) -> None:
+        """Temporary files of a writer that was killed (only call with the lock held)."""
+        for folder in (self.path, self.checkpoints):
+            for pattern in _TEMP_GLOBS:
+                for path in folder.glob(pattern):
+                    if path.is_file():
+                        path.unlink(missing_ok=True)
+
     # ------------------------------------------------------------------ config and status
-    def check_new(self) -> None:
-        if self.exists():
+    def check_new(self, overwrite: bool = False) -> None:
+        """That a new run can be created here: no run already (unless `overwrite`), and a
+        directory that can be created and written."""
+        check_creatable_dir(self.path, "out")
+        if self.exists() and not overwrite:
             raise ValueError(
                 f"run directory {str(self.path)!r} already holds a run; use --resume to continue "
-                "it or choose another --out"
+                "it, --overwrite to delete it and start again, or choose another --out"
             )
 
-    def create(self, config: dict, **sections) -> None:
-        self.check_new()
-        self.path.mkdir(parents=True, exist_ok=True)
-        self.write_config(config, **sections)
+    def create(self, config: dict, overwrite: bool = False, **sections) -> None:
+        """Make the directory and take its lock, then (with `overwrite`, deleting the run that
+        is there) write the config: the run now exists."""
+        self.check_new(overwrite)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            self.lock()
+            self.check_new(overwrite)  # again, with the lock: another process may have made it
+            if overwrite:
+                self.clear()
+            self.write_config(config, **sections)
+        except OSError as exc:
+            if is_disk_full(exc):
+                raise
+            raise ValueError(f"out={str(self.path)!r} cannot be written: {exc.strerror}") from None
+
+    def clear(self) -> None:
+        """Delete the run's own files (nothing else that may be in the folder)."""
+        for name in _RUN_ENTRIES:
+            path = self.path / name
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
+                path.unlink(missing_ok=True)
 
     def write_config(self, config: dict, **sections) -> None:
         """`config` is what `read_config` returns; `sections` are derived facts, for people."""
@@ -231,17 +406,33 @@ class RunDir:
         atomic_write(self.path / "config.json", json.dumps(doc, indent=2))
 
     def read_config(self) -> dict:
-        return self.read_section("config")
+        config = self.read_section("config")
+        if not isinstance(config, dict):
+            raise ValueError(f"{self.config_yaml}: its 'config' section is not a mapping")
+        return config
 
     def read_section(self, name: str):
         if not self.exists():
             raise ValueError(f"{str(self.path)!r} is not a run directory (no config.yaml)")
-        return yaml.safe_load(self.config_yaml.read_text())[name]
+        try:
+            doc = yaml.safe_load(self.config_yaml.read_text())
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            where = " ".join(str(exc).split())
+            raise ValueError(f"{self.config_yaml} is not valid YAML: {where}") from None
+        if not isinstance(doc, dict) or name not in doc:
+            raise ValueError(
+                f"{self.config_yaml} has no {name!r} section (was it edited?); valid: the "
+                f"config.yaml that acl3d train wrote (config.json holds a copy)"
+            )
+        return doc[name]
 
     def status(self) -> str | None:
-        """running | finished | interrupted | crashed, or None before the first start."""
-        path = self.path / "status.json"
-        return json.loads(path.read_text())["status"] if path.exists() else None
+        """running | finished | interrupted | crashed, or None before the first start (or when
+        status.json cannot be read)."""
+        try:
+            return json.loads((self.path / "status.json").read_text())["status"]
+        except (OSError, ValueError, KeyError, TypeError):  # none yet, or torn by a full disk
+            return None
 
     def set_status(self, status: str, **extra) -> None:
         atomic_write(self.path / "status.json", json.dumps({"status": status, **extra}, indent=2))
@@ -292,10 +483,52 @@ class RunDir:
     def latest_checkpoint(self) -> Path:
         name = self.latest_checkpoint_name()
         if name is None or not (self.checkpoints / name / "progress.json").exists():
-            raise ValueError(
-                f"run directory {str(self.path)!r} has no complete checkpoint to resume"
-            )
+            raise ValueError(self._no_checkpoint_message())
         return self.checkpoints / name
+
+    def _no_checkpoint_message(self, why: str = "") -> str:
+        return (
+            f"run directory {str(self.path)!r} has no complete checkpoint to resume{why}; start "
+            f"it again with acl3d train --overwrite --out {self.path} (same options), or delete it"
+        )
+
+    def resume_point(self, verify: Callable[[Path], None]) -> Path:
+        """The newest complete checkpoint that `verify(folder)` accepts (it raises
+        DamagedCheckpoint for a damaged one; other errors stop the search): LATEST, else the
+        previous one the run keeps, said on stderr."""
+        latest = self.latest_checkpoint_name()
+        folders = sorted(
+            (p for p in self.checkpoints.glob("step_*") if latest is None or p.name <= latest),
+            reverse=True,
+        )
+        rejected = []
+        for folder in folders:
+            if not (folder / "progress.json").exists():
+                continue
+            try:
+                verify(folder)
+            except DamagedCheckpoint as exc:
+                rejected.append(f"{folder.name}: {exc}")
+                continue
+            for why in rejected:
+                print(f"[acl3d] skipping damaged checkpoint {why}", file=sys.stderr)
+            return folder
+        if rejected:
+            raise ValueError(self._no_checkpoint_message(f" (damaged: {'; '.join(rejected)})"))
+        raise ValueError(self._no_checkpoint_message())
+
+    def restart_from(self, folder: Path) -> None:
+        """Make `folder` the run's LATEST checkpoint; newer (damaged) ones are set aside as
+        `checkpoints/.damaged_step_N`, so the run writes its steps again."""
+        if folder.name == self.latest_checkpoint_name():
+            return
+        for newer in self.checkpoints.glob("step_*"):
+            if newer.name > folder.name:
+                aside = self.checkpoints / f".damaged_{newer.name}"
+                shutil.rmtree(aside, ignore_errors=True)
+                os.replace(newer, aside)
+        atomic_write(self.checkpoints / "LATEST", folder.name)
+        fsync_path(self.checkpoints)
 
     # ------------------------------------------------------------------ reading back
     def best_model(self) -> Path:
@@ -308,4 +541,4 @@ class RunDir:
         """The test set the run evaluated on (from its teacher dump), or None."""
         if not self.teacher_prefix.with_suffix(".json").exists():
             return None
-        return load_state(self.teacher_prefix).get("test_tasks")
+        return read_state(self.teacher_prefix).get("test_tasks")

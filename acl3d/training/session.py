@@ -9,7 +9,7 @@ Everything except SB3's own zip is JSON + NPZ.
 
 from __future__ import annotations
 
-import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -17,14 +17,29 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.vec_env import VecNormalize
 
+from acl3d import validation as check
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
 from acl3d.training import students
-from acl3d.training.config import TrainConfig, excludes_exploratory, student_params
+from acl3d.training.config import (
+    TrainConfig,
+    excludes_exploratory,
+    fixed_settings,
+    student_params,
+)
 from acl3d.training.curriculum import CurriculumVecEnv
 from acl3d.training.evaluation import EvalResult, evaluate, make_predict
-from acl3d.training.run_dir import RunDir, atomic_replace, atomic_state_files
-from acl3d.training.workers import make_env, make_vec_env
+from acl3d.training.run_dir import (
+    DamagedCheckpoint,
+    RunDir,
+    atomic_replace,
+    atomic_state_files,
+    check_zip,
+    read_state,
+    remove_on_failure,
+    temp_prefix,
+)
+from acl3d.training.workers import env_keywords, make_env, make_vec_env
 
 
 def build_controller(config: TrainConfig, task_space, profile=None):
@@ -48,19 +63,99 @@ def build_controller(config: TrainConfig, task_space, profile=None):
     )
 
 
-def probe_task_space(config: TrainConfig):
+def probe_env(config: TrainConfig):
+    """One env of the run, built to check its name, body and `env_kwargs` (named in the error)."""
+    try:
+        return make_env(config.env, config.body, config.env_kwargs)
+    except (TypeError, ValueError) as exc:
+        raise env_kwargs_error(config, exc) from None
+
+
+def env_kwargs_error(config: TrainConfig, exc: Exception) -> Exception:
+    """The env's rejection of an `env_kwargs` entry as `env_kwargs['NAME']=VALUE; valid: ...`
+    (a TypeError for an unknown name lists the names the env takes); other errors unchanged."""
+    text = str(exc)
+    unknown = re.search(r"unexpected keyword argument '(\w+)'", text)
+    if unknown and unknown[1] in config.env_kwargs:
+        name = unknown[1]
+        return check.fail(
+            f"env_kwargs[{name!r}]",
+            config.env_kwargs[name],
+            f"keyword arguments of {config.env}: {', '.join(env_keywords(config.env))}",
+        )
+    for name in config.env_kwargs:
+        if text.startswith(f"{name}="):
+            return ValueError(f"env_kwargs[{name!r}]{text[len(name) :]}")
+    return exc
+
+
+def probe_task_space(config: TrainConfig, env=None):
     """(task space with the run's teacher bounds applied, the env's curriculum profile or None)."""
-    env = make_env(config.env, config.body, config.env_kwargs)
+    own = env is None
+    env = probe_env(config) if own else env
     try:
         task_space = getattr(env.unwrapped, "task_space", None)
         profile = getattr(env.unwrapped, "curriculum_profile", None)
     finally:
-        env.close()
+        if own:
+            env.close()
     if task_space is None:
         raise ValueError(f"environment {config.env!r} has no task_space: no curriculum possible")
     if config.bounds:
         task_space = task_space.with_bounds(**{k: tuple(v) for k, v in config.bounds.items()})
     return task_space, profile
+
+
+def check_test_tasks(env, tasks, task_names: list[str]) -> None:
+    """Every test task must be playable by the env (its `set_task` check), so that a bad test
+    set fails at start, not at the first evaluation after hours of training."""
+    set_task = getattr(env.unwrapped, "set_task", None)
+    if set_task is None:
+        return
+    for i, task in enumerate(tasks):
+        try:
+            set_task(task)
+        except ValueError as exc:
+            shown = dict(zip(task_names, np.round(np.asarray(task, dtype=float), 6).tolist()))
+            why = " ".join(str(exc).split())  # one line: the env may show an array
+            raise ValueError(f"test set: task {i} {shown} cannot be played: {why}") from None
+
+
+def verify_checkpoint(folder: Path, config: TrainConfig) -> None:
+    """Read every file of a checkpoint through (zip CRCs, JSON + NPZ arrays) before any is used:
+    `DamagedCheckpoint` names the first missing, truncated or corrupt one. A config that differs
+    from the one the checkpoint was trained with (an edited config.yaml) is a ValueError."""
+    try:
+        progress = read_state(folder / "progress")
+    except ValueError as exc:
+        raise DamagedCheckpoint(str(exc)) from None
+    check_fixed_settings(config, progress.get("config"), folder.name)
+    prefixes = ["runtime", "controller", "rng"]
+    if students.uses_vecnormalize(config.student):
+        prefixes.append(ckpt.normalization_path(folder / "model.zip").name)
+    try:
+        check_zip(folder / "model.zip", ckpt.MODEL_MEMBERS)
+        for prefix in prefixes:
+            read_state(folder / prefix)
+        if config.student == "sac" and config.save_replay_buffer:
+            check_zip(folder / "replay_buffer.npz")
+    except ValueError as exc:
+        raise DamagedCheckpoint(str(exc)) from None
+
+
+def check_fixed_settings(config: TrainConfig, trained: dict | None, checkpoint: str) -> None:
+    """The run's config must still be the one its checkpoint was trained with (config.yaml may
+    have been edited); checkpoints written before this check existed carry no settings."""
+    if trained is None:
+        return
+    now = fixed_settings(config)
+    for name in sorted(set(trained) | set(now)):
+        if trained.get(name) != now.get(name):
+            raise ValueError(
+                f"config {name}={now.get(name)!r} differs from {trained.get(name)!r}, the value "
+                f"checkpoint {checkpoint} was trained with; a run keeps its {name} for life "
+                f"(restore {trained.get(name)!r} in config.yaml, or start a new run)"
+            )
 
 
 class Session:
@@ -72,9 +167,15 @@ class Session:
 
     def __init__(self, config: TrainConfig, run: RunDir, resume_from: Path | None = None):
         self.config, self.run, self.resume_from = config, run, resume_from
-        task_space, profile = probe_task_space(config)
-        self.task_names = task_space.flat_names()
-        self.controller = build_controller(config, task_space, profile)
+        env = probe_env(config)
+        try:
+            task_space, profile = probe_task_space(config, env)
+            self.task_names = task_space.flat_names()
+            with np.errstate(over="ignore"):  # a test task beyond float32 is refused just below
+                self.controller = build_controller(config, task_space, profile)
+            check_test_tasks(env, self.controller.test_tasks(), self.task_names)
+        finally:
+            env.close()
         self.params = student_params(config)
         self.exclude_exploratory = excludes_exploratory(config)
         self.train_env = self.eval_env = self.curriculum_env = self.vecnorm = None
@@ -95,7 +196,19 @@ class Session:
         )
 
     def __enter__(self):
-        self.curriculum_env = CurriculumVecEnv(self._vec_env(self.config.n_envs), self.controller)
+        try:
+            self._start_envs()
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def _start_envs(self) -> None:
+        try:
+            venv = self._vec_env(self.config.n_envs)
+        except (TypeError, ValueError) as exc:
+            raise env_kwargs_error(self.config, exc) from None
+        self.curriculum_env = CurriculumVecEnv(venv, self.controller)
         env = self.curriculum_env
         if students.uses_vecnormalize(self.config.student):
             env = self.vecnorm = VecNormalize(
@@ -108,7 +221,6 @@ class Session:
             )
         self.train_env = env
         self.eval_env = self._vec_env(self.config.effective_eval_envs)
-        return self
 
     def __exit__(self, *exc):
         for env in (self.train_env, self.eval_env):
@@ -206,6 +318,7 @@ class Session:
             "episodes_done": int(self.curriculum_env.episodes_done),
             "time": time.time(),
             "wall_time_s": self.wall_time(),
+            "config": fixed_settings(self.config),
         }
         save_state(folder / "progress", progress)
 
@@ -221,9 +334,13 @@ class Session:
                 ckpt.normalization_path(final),
                 lambda tmp: save_state(tmp, ckpt.normalization_state(self.vecnorm)),
             )
-        tmp = final.with_name(f"_{final.stem}_{os.getpid()}_tmp.zip")
-        self.model.save(tmp)
-        atomic_replace(tmp, final)
+        tmp = temp_prefix(final.with_suffix("")).with_suffix(".zip")
+        try:
+            self.model.save(tmp)
+            atomic_replace(tmp, final)
+        except BaseException:
+            remove_on_failure([tmp])
+            raise
 
     # ------------------------------------------------------------------ evaluation
     def run_eval(self) -> EvalResult:

@@ -18,6 +18,7 @@ import torch
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from acl3d import validation as check
 from acl3d.training.exclusion import (
     ExcludingPPO,
     ExcludingReplayBuffer,
@@ -120,8 +121,81 @@ def hyperparameters(student: str, preset: str, n_envs: int, overrides=None) -> d
             valid = sorted(set(params) | _EXTRA_KEYS[student])
             raise ValueError(f"unknown student parameter {key!r} for {student}; valid: {valid}")
         params[key] = value
+    _check_values(params, n_envs)
     _check_consistency(student, params, n_envs)
     return params
+
+
+# Upper bounds that keep a run's buffers in memory (TeachMyAgent's largest: 2e6 transitions)
+MAX_BUFFER_SIZE = 50_000_000
+MAX_ROLLOUT = 10_000_000  # PPO's n_steps x n_envs
+MAX_LAYER = 65_536  # units per hidden layer
+
+
+def _check_values(params: dict, n_envs: int) -> None:
+    """Each hyperparameter's type and range, before SB3 or torch sees it (they would fail late,
+    or not at all: a negative learning rate is accepted by SB3 and refused by torch's optimiser)."""
+    name = "student_params[{!r}]".format
+    for key, value in params.items():
+        if key in _POSITIVE_REALS:
+            check.positive(name(key), value)
+        elif key in _NON_NEGATIVE_REALS:
+            check.positive(name(key), value, allow_zero=True)
+        elif key in _UNIT_REALS:
+            check.real(name(key), value, 0.0, 1.0)
+        elif key in _COUNTS:
+            check.count(name(key), value, minimum=_COUNTS[key], allow_float=True)
+        elif key in _BOOLS:
+            check.flag(name(key), value)
+        elif key in _OPTIONAL_POSITIVE_REALS and value is not None:
+            check.positive(name(key), value)
+    _check_ranges(params, n_envs, name)
+
+
+def _check_ranges(params: dict, n_envs: int, name) -> None:
+    if "buffer_size" in params:
+        check.integer(name("buffer_size"), params["buffer_size"], 1, MAX_BUFFER_SIZE)
+    if "n_steps" in params and int(params["n_steps"]) * n_envs > MAX_ROLLOUT:
+        raise check.fail(
+            name("n_steps"),
+            params["n_steps"],
+            f"n_steps x n_envs <= {MAX_ROLLOUT} (n_envs={n_envs})",
+        )
+    if "gradient_steps" in params and params["gradient_steps"] != -1:
+        check.count(name("gradient_steps"), params["gradient_steps"], minimum=1)
+    ent = params.get("ent_coef")
+    if not (isinstance(ent, str) and (ent == "auto" or ent.startswith("auto_"))):
+        check.real(name("ent_coef"), ent, 0.0)
+    freq = params.get("train_freq", 1)
+    if isinstance(freq, (list, tuple)):
+        if len(freq) != 2 or freq[1] not in ("step", "episode"):
+            raise check.fail(name("train_freq"), freq, 'N, [N, "step"] or [N, "episode"]')
+        freq = freq[0]
+    check.count(name("train_freq"), freq)
+    kwargs = params.get("policy_kwargs")
+    if not isinstance(kwargs, dict):
+        raise check.fail(name("policy_kwargs"), kwargs, "a mapping (net_arch, activation_fn)")
+    arch = kwargs.get("net_arch", [])
+    layers = [arch] if isinstance(arch, int) else arch
+    if isinstance(layers, dict):
+        layers = [n for v in layers.values() for n in (v if isinstance(v, list) else [v])]
+    if not isinstance(layers, list) or not all(
+        check.is_real(n) and isinstance(n, int) and 1 <= n <= MAX_LAYER for n in layers
+    ):
+        raise check.fail(
+            "student_params['policy_kwargs']['net_arch']",
+            arch,
+            f"a list of layer sizes in [1, {MAX_LAYER}] (or {{'pi': [...], 'vf': [...]}})",
+        )
+
+
+_POSITIVE_REALS = ("learning_rate", "clip_range", "max_grad_norm")
+_NON_NEGATIVE_REALS = ("vf_coef",)
+_OPTIONAL_POSITIVE_REALS = ("target_kl", "clip_range_vf")
+_UNIT_REALS = ("gamma", "gae_lambda", "tau")
+_COUNTS = {"batch_size": 1, "n_steps": 1, "n_epochs": 1, "learning_starts": 0,
+           "target_update_interval": 1}  # fmt: skip
+_BOOLS = ("normalize_advantage", "optimize_memory_usage", "use_sde")
 
 
 _EXTRA_KEYS = {

@@ -10,6 +10,7 @@ touched, so a bad command fails in a second with the reason and changes nothing.
 from __future__ import annotations
 
 import dataclasses
+import os
 import signal
 import sys
 import threading
@@ -19,25 +20,18 @@ from pathlib import Path
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from acl3d.teachers.base import load_state
+from acl3d import validation as check
 from acl3d.training.callbacks import run_callbacks
 from acl3d.training.config import (
+    RESUME_MAY_CHANGE,
     TrainConfig,
     round_steps,
     steps_per_collection,
     student_params,
     validate,
 )
-from acl3d.training.run_dir import RunDir, read_csv, truncate_csv
-from acl3d.training.session import Session
-
-# Options a resumed run may change (runtime settings, and `steps` to extend it). Not the vec env
-# kind or envs per worker: an in-process batched env pulls each task at its reset, worker
-# processes get theirs pushed one episode ahead, so the teacher sees a different order.
-RESUME_MAY_CHANGE = (
-    "steps", "progress_bar", "verbose", "start_method", "torch_threads", "eval_envs",
-    "tensorboard",
-)  # fmt: skip
+from acl3d.training.run_dir import RunDir, is_disk_full, read_csv, read_state, truncate_csv
+from acl3d.training.session import Session, verify_checkpoint
 
 
 @dataclass
@@ -51,6 +45,7 @@ def train(
     config: TrainConfig | dict | None = None,
     *,
     resume=None,
+    overwrite: bool = False,
     callbacks: list[BaseCallback] | None = None,
     **overrides,
 ) -> TrainResult:
@@ -58,32 +53,51 @@ def train(
 
     `overrides` set config fields (`train(teacher="alp-gmm", steps=10_000, out="runs/x")`). On
     resume the saved config is used; only `steps` (to extend a run) and runtime options
-    (`RESUME_MAY_CHANGE`) may be changed, and the run continues bit for bit from its last
-    checkpoint. `callbacks` are your own SB3 callbacks: they run after the run's own (logging,
-    evaluation, checkpoints) at every SB3 event, see `self.model`, and may stop training early
-    by returning False from `_on_step` (the run then ends with a final evaluation and checkpoint).
+    (`RESUME_MAY_CHANGE`) may be changed, and the run continues bit for bit from its newest
+    checkpoint whose files all read back (else the previous one the run keeps). `overwrite`
+    starts a new run in place of the one in `out` (deleting it). `callbacks` are your own SB3
+    callbacks: they run after the run's own (logging, evaluation, checkpoints) at every SB3
+    event, see `self.model`, and may stop training early by returning False from `_on_step`
+    (the run then ends with a final evaluation and checkpoint).
+
+    Nothing is written before the whole run is checked and built (options, test set, envs,
+    student, the checkpoint to resume): a rejected call leaves the run directory as it was. A
+    run directory is used by one process at a time (`RunInUseError` otherwise).
 
     SB3 collects whole rollouts (PPO: n_steps x n_envs; SAC: train_freq x n_envs), so `steps` is
     rounded up to a whole number of them; the run prints the rounding and records the steps it
     trains as `resolved.steps` in config.yaml.
     """
     user_callbacks = _check_callbacks(callbacks)
-    if resume is not None:
-        run = RunDir(resume)
-        config = _resumed_config(run, dict(config or {}, **overrides))
-        resume_from = run.latest_checkpoint()
-        start = int(load_state(resume_from / "progress")["num_timesteps"])
-    else:
+    check.flag("overwrite", overwrite)
+    if resume is None:
         if isinstance(config, TrainConfig):
             config = dataclasses.replace(config, **overrides)
         else:
             config = TrainConfig.from_dict(dict(config or {}, **overrides))
         if not config.out:
             raise ValueError("out (the run directory) is required")
+        validate(config)
         run = RunDir(config.out)
-        run.check_new()
-        resume_from, start = None, 0
-    validate(config)
+        run.check_new(overwrite)
+        return _start(config, run, None, user_callbacks, overwrite)
+    if overwrite:
+        raise ValueError("overwrite=True starts a new run; it does not apply to resume")
+    run = RunDir(resume)
+    if not run.exists():
+        raise ValueError(f"{str(run.path)!r} is not a run directory (no config.yaml)")
+    run.lock()
+    try:
+        config = _resumed_config(run, dict(config or {}, **overrides))
+        validate(config)
+        resume_from = run.resume_point(lambda folder: verify_checkpoint(folder, config))
+        return _start(config, run, resume_from, user_callbacks, overwrite)
+    finally:
+        run.unlock()
+
+
+def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
+    start = 0 if resume_from is None else int(read_state(resume_from / "progress")["num_timesteps"])
     target = _target_steps(config, start, finished=run.status() == "finished")
     session = Session(config, run, resume_from)  # builds the controller: fails before any worker
     sections = {
@@ -109,12 +123,11 @@ def train(
             file=sys.stderr,
             flush=True,
         )
-    if resume_from is None:
-        run.create(config.to_dict(), **sections)
-    else:
-        run.update_config(config.to_dict(), **sections)
     torch.set_num_threads(config.torch_threads)
-    return _run(session, target, user_callbacks)
+    try:
+        return _run(session, target, user_callbacks, sections, overwrite)
+    finally:
+        run.unlock()
 
 
 def _check_callbacks(callbacks) -> list[BaseCallback]:
@@ -202,15 +215,17 @@ def _interrupt_on_sigterm(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def _run(session: Session, target: int, user_callbacks: list[BaseCallback]) -> TrainResult:
+def _run(session: Session, target: int, user_callbacks, sections: dict, overwrite: bool):
     config, run = session.config, session.run
-    run.set_status("running")
     # Batch schedulers stop jobs with SIGTERM: end like Ctrl-C, with the status written.
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _interrupt_on_sigterm) if in_main else None
+    started = False
     try:
         with session:
-            session.build_student()
+            session.build_student()  # the last check: from here on the run really starts
+            _write_start(session, sections, overwrite)
+            started = True
             model = session.model
             start = int(model.num_timesteps)
             if session.resume_from is not None:
@@ -227,16 +242,59 @@ def _run(session: Session, target: int, user_callbacks: list[BaseCallback]) -> T
             session.save_final_model()
             session.dump_teacher()
     except KeyboardInterrupt:
-        run.set_status("interrupted", latest_checkpoint=run.latest_checkpoint_name())
+        if started:
+            _best_effort(run.set_status, "interrupted", latest_checkpoint=_latest(run))
         raise
     except BaseException as exc:
-        run.set_crashed(exc)
+        if started:
+            _record_crash(run, exc)
         raise
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
     run.set_status("finished", steps=int(model.num_timesteps))
     return TrainResult(run.path, int(model.num_timesteps), _last_eval(run))
+
+
+def _write_start(session: Session, sections: dict, overwrite: bool) -> None:
+    """Write the run's config and `running` status (a new run's directory is made and locked
+    here; a resumed one is locked already): temporary files of a killed writer go first."""
+    run, config = session.run, session.config
+    if session.resume_from is None:
+        run.create(config.to_dict(), overwrite=overwrite, **sections)
+    else:
+        run.remove_temp_files()
+        run.restart_from(session.resume_from)
+        run.update_config(config.to_dict(), **sections)
+    run.set_status("running", pid=os.getpid())
+
+
+def _record_crash(run: RunDir, exc: BaseException) -> None:
+    """`crashed` with the traceback; on a full disk a short status (the long one may not fit),
+    and no error of this write hides the original one."""
+    if is_disk_full(exc):
+        _best_effort(
+            run.set_status,
+            "crashed",
+            error="no space left on device",
+            latest_checkpoint=_latest(run),
+        )
+    else:
+        _best_effort(run.set_crashed, exc)
+
+
+def _latest(run: RunDir) -> str | None:
+    try:
+        return run.latest_checkpoint_name()
+    except OSError:
+        return None
+
+
+def _best_effort(write, *args, **kwargs) -> None:
+    try:
+        write(*args, **kwargs)
+    except OSError:
+        pass
 
 
 def _last_eval(run: RunDir) -> dict[str, float] | None:

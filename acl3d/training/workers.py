@@ -11,6 +11,8 @@ and torch threads do not survive it reliably).
 from __future__ import annotations
 
 import functools
+import importlib
+import inspect
 
 import gymnasium as gym
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
@@ -38,6 +40,22 @@ def make_env(env_name: str, body: str | None = None, env_kwargs=None, render_mod
     if "/" in env_name or "-v" in env_name:
         return gym.make(env_name, **kwargs)
     raise ValueError(f"unknown environment {env_name!r}; valid: {', '.join(acl3d.envs.ENV_NAMES)}")
+
+
+def env_keywords(env_name: str) -> list[str]:
+    """The keyword arguments an env's constructor takes (for messages), besides `body`."""
+    import acl3d.envs
+
+    env_id = acl3d.envs.env_id(env_name) if is_batchable(env_name) else env_name
+    spec = gym.spec(env_id)
+    entry = spec.entry_point
+    if isinstance(entry, str):
+        module, _, name = entry.partition(":")
+        entry = getattr(importlib.import_module(module), name)
+    params = inspect.signature(entry).parameters
+    fixed = {"body", "render_mode", *spec.kwargs}
+    names = [n for n, p in params.items() if p.kind is p.KEYWORD_ONLY or p.default is not p.empty]
+    return ["max_episode_steps", *(n for n in names if n not in fixed)]
 
 
 def make_worker_env(env_name: str, body: str | None, env_kwargs=None, render_mode=None):
@@ -87,7 +105,7 @@ def make_vec_env(
         raise ValueError(
             f"envs_per_worker={envs_per_worker!r}; valid: None or an integer in [1, {n_envs}]"
         )
-    batchable = _is_acl3d(env_name)
+    batchable = is_batchable(env_name)
     if vec_env == "batched" and not batchable:
         raise ValueError(
             f"vec_env='batched' needs an acl3d environment, got {env_name!r}; "
@@ -115,7 +133,8 @@ def make_vec_env(
     return SubprocVecEnv(fns, start_method=start_method)
 
 
-def _is_acl3d(env_name: str) -> bool:
+def is_batchable(env_name: str) -> bool:
+    """acl3d tracks run in the batched env; other Gymnasium ids one env per worker."""
     import acl3d.envs
 
     return env_name in acl3d.envs.ENV_NAMES or env_name in acl3d.envs.ENV_IDS.values()
