@@ -24,6 +24,7 @@ PACKAGES: dict[str, tuple[str, str]] = {
     "ray": ("ray", "campaign"),
     "dm_control": ("dm-control", "dmc"),
     "sklearn": ("scikit-learn", "sklearn"),
+    "syllabus": ("syllabus-rl", "syllabus"),
 }
 
 

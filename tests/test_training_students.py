@@ -144,3 +144,37 @@ def test_detect_student_from_zip(tmp_path):
     (tmp_path / "bad.zip").write_text("not a zip")
     with pytest.raises(ValueError, match="not a Stable-Baselines3 model zip"):
         students.detect(tmp_path / "bad.zip")
+
+
+def test_any_sb3_algorithm_takes_its_own_checked_hyperparameters():
+    td3 = students.hyperparameters("sb3:TD3", "fast", 2, {"tau": 0.01, "action_noise_std": 0.2})
+    assert td3 == {
+        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"},
+        "tau": 0.01,
+        "action_noise_std": 0.2,
+    }
+    assert students.collection_steps("sb3:TD3", td3, 2) == 2  # TD3's train_freq: 1 step
+    assert students.collection_steps("sb3:A2C", {"n_steps": 8}, 4) == 32
+    assert students.uses_vecnormalize("sb3:A2C") and not students.uses_vecnormalize("sb3:TD3")
+    assert students.spec(students.algorithm_class("sb3:TD3")) == "stable_baselines3.td3.td3:TD3"
+    model = students.build("sb3:TD3", td3, counting_venv(2), seed=0)
+    model.learn(40)
+    values = students.value_estimator(model)(np.array([[3.0, 0.5, 2.0]], dtype=np.float32))
+    assert values.shape == (1,) and np.isfinite(values).all()
+    students.reinitialise(model)
+    assert model.replay_buffer.size() == 0 and model.actor is model.policy.actor
+
+
+@pytest.mark.parametrize(
+    "student, overrides, match",
+    [
+        ("sb3:Nope", {}, "student"),
+        ("acl3d.task_space:TaskSpace", {}, "Stable-Baselines3 algorithm class"),
+        ("td3", {}, "student"),
+        ("sb3:TD3", {"gae_lambda": 0.9}, "unknown student parameter 'gae_lambda' for sb3:TD3"),
+        ("sb3:A2C", {"action_noise_std": 0.1}, "unknown student parameter"),
+    ],
+)
+def test_bad_students_raise(student, overrides, match):
+    with pytest.raises(ValueError, match=match):
+        students.hyperparameters(student, "fast", 1, overrides)

@@ -57,7 +57,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--teacher", help=f"curriculum teacher: {', '.join(TEACHERS)} (default {_DEFAULTS.teacher})"
     )
-    g.add_argument("--student", help=f"sac or ppo (default {_DEFAULTS.student})")
+    g.add_argument(
+        "--student",
+        help=f"sac, ppo or any Stable-Baselines3 algorithm: sb3:TD3, sb3:A2C, pkg.mod:Class "
+        f"(default {_DEFAULTS.student})",
+    )
     g.add_argument(
         "--preset",
         help="student hyperparameters: fast (small networks for CPUs) or benchmark "

@@ -309,11 +309,13 @@ def excludes_exploratory(config: TrainConfig) -> bool:
             f"valid with the teachers {', '.join(marking)}"
         )
     # SAC's memory-saving buffer takes each next observation from the next slot: no exclusions
-    able = not (config.student == "sac" and config.student_params.get("optimize_memory_usage"))
+    memory_saving = config.student_params.get("optimize_memory_usage")
+    able = config.student in ("sac", "ppo") and not memory_saving
     if value is True and not able:
         raise ValueError(
-            "exclude_exploratory=True: not possible with the sac student parameter "
-            "optimize_memory_usage=True; valid: optimize_memory_usage=False"
+            f"exclude_exploratory=True: not possible with student {config.student!r}"
+            + (" and optimize_memory_usage=True" if memory_saving else "")
+            + "; valid: the sac or ppo student, with optimize_memory_usage=False"
         )
     if value == "auto":
         return marks and able
@@ -328,21 +330,18 @@ def student_params(config: TrainConfig) -> dict:
     if config.buffer_size is not None:
         if config.student != "sac":
             raise ValueError(
-                "buffer_size applies to the sac student only (ppo has no replay buffer)"
+                f"buffer_size applies to the sac student only, not {config.student!r} "
+                "(other algorithms: student_params={'buffer_size': ...})"
             )
         overrides["buffer_size"] = config.buffer_size
     return students.hyperparameters(config.student, config.preset, config.n_envs, overrides)
 
 
 def steps_per_collection(student: str, params: dict, n_envs: int) -> int:
-    """Env steps SB3 collects between two checks of its step budget: a PPO rollout
-    (n_steps x n_envs), or SAC's train_freq x n_envs (1 x n_envs for episode-based train_freq)."""
-    if student == "ppo":
-        return int(params["n_steps"]) * n_envs
-    freq = params.get("train_freq", 1)
-    if isinstance(freq, (list, tuple)):
-        freq = freq[0] if len(freq) == 2 and freq[1] == "step" else 1
-    return int(freq) * n_envs
+    """Env steps SB3 collects between two checks of its step budget (`students.collection_steps`)."""
+    from acl3d.training import students
+
+    return students.collection_steps(student, params, n_envs)
 
 
 def round_steps(steps: int, unit: int) -> int:

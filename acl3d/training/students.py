@@ -1,22 +1,35 @@
-"""Students: Stable-Baselines3 SAC and PPO with TeachMyAgent's settings or a CPU-friendly preset.
+"""Students: Stable-Baselines3 SAC and PPO with TeachMyAgent's settings or a CPU-friendly
+preset, and any other Stable-Baselines3 algorithm with its own hyperparameters.
 
 `benchmark` follows TeachMyAgent §4.4 as closely as SB3 allows (deviations are listed in the
 docs: SB3's SAC has no separate V network and updates every 10 steps instead of at episode end;
 SB3's PPO has separate policy/value MLPs instead of a shared trunk). `fast` keeps the same
 algorithms with small networks and short rollouts so a CPU run shows learning within minutes.
+
+Other algorithms are named "sb3:TD3" (any algorithm class of `stable_baselines3`) or
+"package.module:Class" (any `BaseAlgorithm` subclass, e.g. from sb3-contrib). The preset sets
+only their network (`benchmark` 400-300, `fast` 64-64); everything else is the algorithm's own
+default unless given in `student_params`, checked against its constructor. `action_noise_std`
+adds Gaussian exploration noise to the algorithms that take an `action_noise` (TD3, DDPG).
 """
 
 from __future__ import annotations
 
+import importlib
+import inspect
 import json
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import stable_baselines3
 import torch
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 from acl3d import validation as check
 from acl3d.training.exclusion import (
@@ -26,7 +39,7 @@ from acl3d.training.exclusion import (
     ExcludingSAC,
 )
 
-STUDENTS: tuple[str, ...] = ("sac", "ppo")
+STUDENTS: tuple[str, ...] = ("sac", "ppo")  # with presets; "sb3:TD3", "pkg.mod:Class" too
 PRESETS: tuple[str, ...] = ("benchmark", "fast")
 
 # SB3's SAC and PPO, unless their buffer excludes transitions (acl3d.training.exclusion)
@@ -102,9 +115,37 @@ def _ppo(preset: str, n_envs: int) -> dict[str, Any]:
 _ACTIVATIONS = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh, "elu": torch.nn.ELU}
 
 
+def spec(student) -> str:
+    """The name a run records for `student`: itself for a name, "module:Class" for a class."""
+    if isinstance(student, type):
+        return f"{student.__module__}:{student.__qualname__}"
+    return student
+
+
+def algorithm_class(student: str) -> type[BaseAlgorithm]:
+    """The SB3 algorithm class of a student name (see the module docstring)."""
+    valid = f"valid students: {', '.join(STUDENTS)}, sb3:NAME (e.g. sb3:TD3) or pkg.module:Class"
+    if student in _ALGOS:
+        return _ALGOS[student]
+    if not isinstance(student, str) or ":" not in student:
+        raise ValueError(f"unknown student {student!r}; {valid}")
+    module, _, name = student.partition(":")
+    try:
+        owner = stable_baselines3 if module == "sb3" else importlib.import_module(module)
+        cls = getattr(owner, name)
+    except (ImportError, AttributeError, ValueError) as exc:
+        raise ValueError(f"unknown student {student!r} ({exc}); {valid}") from None
+    if not (isinstance(cls, type) and issubclass(cls, BaseAlgorithm)):
+        raise ValueError(f"student {student!r} is not a Stable-Baselines3 algorithm class; {valid}")
+    return cls
+
+
+def is_on_policy(student: str) -> bool:
+    return issubclass(algorithm_class(student), OnPolicyAlgorithm)
+
+
 def check_student(student: str, preset: str) -> None:
-    if student not in STUDENTS:
-        raise ValueError(f"unknown student {student!r}; valid students: {', '.join(STUDENTS)}")
+    algorithm_class(student)
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(PRESETS)}")
 
@@ -115,11 +156,17 @@ def hyperparameters(student: str, preset: str, n_envs: int, overrides=None) -> d
     `overrides` replaces top-level keys (e.g. `{"buffer_size": 100000}`); unknown keys fail.
     """
     check_student(student, preset)
-    params = _sac(preset, n_envs) if student == "sac" else _ppo(preset, n_envs)
+    if student in _ALGOS:
+        params = _sac(preset, n_envs) if student == "sac" else _ppo(preset, n_envs)
+        accepted = set(params) | _EXTRA_KEYS[student]
+    else:
+        params = _network(preset)
+        accepted = _constructor_keys(algorithm_class(student))
     for key, value in (overrides or {}).items():
-        if key not in params and key not in _EXTRA_KEYS[student]:
-            valid = sorted(set(params) | _EXTRA_KEYS[student])
-            raise ValueError(f"unknown student parameter {key!r} for {student}; valid: {valid}")
+        if key not in params and key not in accepted:
+            raise ValueError(
+                f"unknown student parameter {key!r} for {student}; valid: {sorted(accepted)}"
+            )
         params[key] = value
     _check_values(params, n_envs)
     _check_consistency(student, params, n_envs)
@@ -163,7 +210,7 @@ def _check_ranges(params: dict, n_envs: int, name) -> None:
         )
     if "gradient_steps" in params and params["gradient_steps"] != -1:
         check.count(name("gradient_steps"), params["gradient_steps"], minimum=1)
-    ent = params.get("ent_coef")
+    ent = params.get("ent_coef", 0.0)
     if not (isinstance(ent, str) and (ent == "auto" or ent.startswith("auto_"))):
         check.real(name("ent_coef"), ent, 0.0)
     freq = params.get("train_freq", 1)
@@ -198,6 +245,46 @@ _COUNTS = {"batch_size": 1, "n_steps": 1, "n_epochs": 1, "learning_starts": 0,
 _BOOLS = ("normalize_advantage", "optimize_memory_usage", "use_sde")
 
 
+def _network(preset: str) -> dict[str, Any]:
+    """The preset's network for algorithms without a tuned preset."""
+    if preset == "benchmark":
+        return {"policy_kwargs": {"net_arch": [400, 300], "activation_fn": "relu"}}
+    return {"policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"}}
+
+
+# set by acl3d itself (build) or meaningless in a run: not student parameters
+_RESERVED = {
+    "self",
+    "policy",
+    "env",
+    "seed",
+    "tensorboard_log",
+    "device",
+    "verbose",
+    "_init_setup_model",
+}
+
+
+def _constructor_keys(cls: type[BaseAlgorithm]) -> set[str]:
+    keys = set(inspect.signature(cls.__init__).parameters) - _RESERVED
+    if "action_noise" in keys:
+        keys = (keys - {"action_noise"}) | {"action_noise_std"}
+    return keys
+
+
+def collection_steps(student: str, params: dict, n_envs: int) -> int:
+    """Env steps SB3 collects between two checks of its step budget: an on-policy rollout
+    (n_steps x n_envs), or an off-policy algorithm's train_freq x n_envs (1 x n_envs for an
+    episode-based train_freq); the algorithm's own default where `params` does not say."""
+    defaults = inspect.signature(algorithm_class(student).__init__).parameters
+    if is_on_policy(student):
+        return int(params.get("n_steps", defaults["n_steps"].default)) * n_envs
+    freq = params.get("train_freq", defaults["train_freq"].default)
+    if isinstance(freq, (list, tuple)):
+        freq = freq[0] if len(freq) == 2 and freq[1] == "step" else 1
+    return int(freq) * n_envs
+
+
 _EXTRA_KEYS = {
     "sac": {"target_update_interval", "optimize_memory_usage", "use_sde"},
     "ppo": {"normalize_advantage", "target_kl", "clip_range_vf", "use_sde"},
@@ -212,7 +299,7 @@ def _check_consistency(student: str, params: dict, n_envs: int) -> None:
                 f"ppo batch_size ({params['batch_size']}) must be <= n_steps x n_envs "
                 f"({params['n_steps']} x {n_envs} = {rollout})"
             )
-    else:
+    elif student == "sac":
         if int(params["buffer_size"]) < int(params["batch_size"]):
             raise ValueError(
                 f"sac buffer_size ({params['buffer_size']}) must be >= batch_size "
@@ -224,8 +311,9 @@ def _check_consistency(student: str, params: dict, n_envs: int) -> None:
 
 
 def uses_vecnormalize(student: str) -> bool:
-    """TeachMyAgent normalises observations and returns for PPO only (clip 10)."""
-    return student == "ppo"
+    """TeachMyAgent normalises observations and returns for PPO (clip 10); acl3d does it for
+    every on-policy algorithm (A2C too), as RL Zoo does on MuJoCo tasks."""
+    return is_on_policy(student)
 
 
 def build(
@@ -248,7 +336,12 @@ def build(
     act = policy_kwargs.get("activation_fn")
     if isinstance(act, str):
         policy_kwargs["activation_fn"] = _ACTIVATIONS[act]
-    return _ALGOS[student](
+    noise_std = kwargs.pop("action_noise_std", None)
+    if noise_std is not None:
+        size = env.action_space.shape[0]
+        std = check.real("action_noise_std", noise_std, 0.0)
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(size), np.full(size, std))
+    return algorithm_class(student)(
         "MlpPolicy",
         env,
         policy_kwargs=policy_kwargs,
@@ -267,22 +360,33 @@ def load(student: str | None, path, env=None, device: str = "cpu") -> BaseAlgori
         raise ValueError(f"model file {str(path)!r} does not exist")
     if student is None:
         student = detect(path)
-    return _ALGOS[student].load(str(path), env=env, device=device)
+    return algorithm_class(student).load(str(path), env=env, device=device)
 
 
 def detect(path) -> str:
-    """Which student wrote this SB3 zip (by the hyperparameters stored in it)."""
+    """Which student wrote this SB3 zip: by its policy's module for SB3's off-policy
+    algorithms, else by the hyperparameters stored in it (PPO, A2C)."""
     try:
         with zipfile.ZipFile(path) as z:
             data = json.loads(z.read("data"))
     except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
         raise ValueError(f"{str(path)!r} is not a Stable-Baselines3 model zip ({exc})") from None
+    policy_module = str((data.get("policy_class") or {}).get("__module__", "")).split(".")
+    if len(policy_module) > 2 and policy_module[0] == "stable_baselines3":  # sb3.<algo>.policies
+        name = policy_module[1]
+        if name in _ALGOS:
+            return name
+        if isinstance(getattr(stable_baselines3, name.upper(), None), type):
+            return f"sb3:{name.upper()}"
     if "n_epochs" in data:
         return "ppo"
+    if "n_steps" in data and "gae_lambda" in data:  # on-policy without PPO's epochs
+        return "sb3:A2C"
     if "tau" in data and "buffer_size" in data:
         return "sac"
     raise ValueError(
-        f"{str(path)!r}: not a SAC or PPO model; valid students: {', '.join(STUDENTS)}"
+        f"{str(path)!r}: not a Stable-Baselines3 algorithm's model; valid students: "
+        f"{', '.join(STUDENTS)} or sb3:NAME"
     )
 
 
@@ -296,9 +400,10 @@ def algorithm_name(model: BaseAlgorithm) -> str:
 def value_estimator(model: BaseAlgorithm, normalize_obs=None):
     """The student's value function V(s) on raw observations, for teachers that need it.
 
-    PPO: the critic on the observations as the policy sees them (normalised by VecNormalize when
-    used; TeachMyAgent fed raw ones, §6.16). SAC: min of the two critics at the policy's
-    deterministic action. Reads `model.policy` at call time, so it follows student resets.
+    On-policy students (PPO, A2C): the critic on the observations as the policy sees them
+    (normalised by VecNormalize when used; TeachMyAgent fed raw ones, §6.16). Off-policy ones
+    (SAC, TD3, ...): min of the critics at the policy's deterministic action. Reads
+    `model.policy` at call time, so it follows student resets.
     """
 
     def estimate(states) -> np.ndarray:
@@ -310,10 +415,10 @@ def value_estimator(model: BaseAlgorithm, normalize_obs=None):
         policy = model.policy
         with torch.no_grad():
             obs_t = torch.as_tensor(obs, dtype=torch.float32, device=policy.device)
-            if isinstance(model, PPO):
+            if isinstance(model, OnPolicyAlgorithm):
                 values = policy.predict_values(obs_t)
             else:
-                actions = policy.actor(obs_t, deterministic=True)
+                actions = policy._predict(obs_t, deterministic=True)
                 values = torch.min(torch.cat(policy.critic(obs_t, actions), dim=1), dim=1).values
         return values.reshape(-1).cpu().numpy()
 
@@ -321,8 +426,9 @@ def value_estimator(model: BaseAlgorithm, normalize_obs=None):
 
 
 def reinitialise(model: BaseAlgorithm) -> None:
-    """Fresh networks and optimisers (and an empty replay buffer for SAC): a forgetting student."""
-    extra = {"use_sde": model.use_sde} if isinstance(model, PPO) else {}
+    """Fresh networks and optimisers (and an empty replay buffer for off-policy students): a
+    forgetting student."""
+    extra = {"use_sde": model.use_sde} if isinstance(model, OnPolicyAlgorithm) else {}
     model.policy = model.policy_class(
         model.observation_space,
         model.action_space,
@@ -330,11 +436,10 @@ def reinitialise(model: BaseAlgorithm) -> None:
         **extra,
         **model.policy_kwargs,
     ).to(model.device)
-    if isinstance(model, SAC):
-        model._create_aliases()
+    if isinstance(model, OffPolicyAlgorithm):
+        model._create_aliases()  # actor / critic / target attributes point at the new policy
         model.replay_buffer.reset()
-        if model.ent_coef_optimizer is not None:  # a learned entropy coefficient starts afresh
-            model.log_ent_coef = torch.zeros(1, device=model.device).requires_grad_(True)
-            model.ent_coef_optimizer = torch.optim.Adam(
-                [model.log_ent_coef], lr=model.lr_schedule(1)
-            )
+    if isinstance(model, SAC) and model.ent_coef_optimizer is not None:
+        # a learned entropy coefficient starts afresh
+        model.log_ent_coef = torch.zeros(1, device=model.device).requires_grad_(True)
+        model.ent_coef_optimizer = torch.optim.Adam([model.log_ent_coef], lr=model.lr_schedule(1))

@@ -21,6 +21,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from acl3d import validation as check
+from acl3d.training import students
 from acl3d.training.callbacks import run_callbacks
 from acl3d.training.config import (
     RESUME_MAY_CHANGE,
@@ -75,6 +76,8 @@ def train(
             config = dataclasses.replace(config, **overrides)
         else:
             config = TrainConfig.from_dict(dict(config or {}, **overrides))
+        if isinstance(config.student, type):  # an algorithm class: recorded as "module:Class"
+            config = dataclasses.replace(config, student=students.spec(config.student))
         if not config.out:
             raise ValueError("out (the run directory) is required")
         validate(config)
@@ -178,7 +181,11 @@ def _target_steps(config: TrainConfig, start: int, finished: bool) -> int:
             "value to extend it"
         )
     if target != config.steps and config.verbose:
-        what = "rollouts" if config.student == "ppo" else "collections (train_freq x n_envs)"
+        what = (
+            "rollouts"
+            if students.is_on_policy(config.student)
+            else "collections (train_freq x n_envs)"
+        )
         print(
             f"[acl3d] steps={config.steps} is not a whole number of {config.student.upper()} "
             f"{what} of {unit} steps: training {target} steps",
