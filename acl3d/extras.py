@@ -32,14 +32,16 @@ class MissingExtraError(ModuleNotFoundError):
     """An optional package is missing; the message names the extra that installs it."""
 
 
-def install_hint(module: str) -> str:
-    """`pip install "acl3d[EXTRA]"` for an importable name listed in PACKAGES."""
-    return f'pip install "acl3d[{PACKAGES[module.split(".")[0]][1]}]"'
+def install_hint(module: str, extra: str | None = None) -> str:
+    """`pip install "acl3d[EXTRA]"` for an importable name listed in PACKAGES (or `extra`)."""
+    return f'pip install "acl3d[{extra or PACKAGES[module.split(".")[0]][1]}]"'
 
 
 @contextmanager
-def optional_dependency(purpose: str) -> Iterator[None]:
-    """Turn the import error of a missing optional package into one that says what to install.
+def optional_dependency(purpose: str, extra: str | None = None) -> Iterator[None]:
+    """Turn the import error of a missing optional package into one that says what to install:
+    the extra holding that package, or `extra` when the purpose needs all of a larger one (a
+    campaign needs [campaign] whichever of its packages is found missing first).
 
     Errors of other modules (a missing core package, a bug) pass through unchanged.
     """
@@ -54,6 +56,6 @@ def optional_dependency(purpose: str) -> Iterator[None]:
         package, _ = PACKAGES[top]
         raise MissingExtraError(
             f"{purpose} needs the optional package {package!r}, which is not installed: "
-            f"{install_hint(top)}",
+            f"{install_hint(top, extra)}",
             name=exc.name,
         ) from exc

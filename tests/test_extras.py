@@ -61,6 +61,7 @@ out["errors"]["train"] = error(lambda: __import__("acl3d.training", fromlist=["x
 out["errors"]["dmc"] = error(lambda: gym.make("acl3d/StumpTracks-v0", body="dmc:ant"))
 out["errors"]["sb3"] = error(lambda: __import__("acl3d.envs.batched_sb3"))
 out["cli_train"] = main(["train", "--steps", "1000", "--out", "unused-run"])
+out["cli_campaign"] = main(["campaign", "run", "quick", "--out", "unused-campaign"])
 print("RESULT " + json.dumps(out))
 """
 
@@ -78,7 +79,8 @@ def without_extras(tmp_path_factory):
     )
     assert done.returncode == 0, done.stderr[-3000:]
     line = next(x for x in done.stdout.splitlines() if x.startswith("RESULT "))
-    assert not (cwd / "unused-run").exists()  # the refused command wrote nothing
+    assert not (cwd / "unused-run").exists()  # the refused commands wrote nothing
+    assert not (cwd / "unused-campaign").exists()
     return json.loads(line[len("RESULT ") :]), done.stderr
 
 
@@ -108,7 +110,8 @@ def test_missing_extras_are_named_with_their_install_command(without_extras):
     assert 'pip install "acl3d[train]"' in out["errors"]["train"]
     assert 'pip install "acl3d[dmc]"' in out["errors"]["dmc"]
     assert 'pip install "acl3d[train]"' in out["errors"]["sb3"]
-    assert out["cli_train"] == 1
+    assert out["cli_train"] == out["cli_campaign"] == 1
+    assert re.search(r"acl3d campaign: error: .*pip install \"acl3d\[campaign\]\"", stderr)
     assert re.search(r"acl3d train: error: .*pip install \"acl3d\[train\]\"", stderr)
 
 
@@ -136,3 +139,13 @@ def test_optional_dependency_leaves_other_import_errors_alone():
     assert not isinstance(info.value, MissingExtraError)
     with pytest.raises(MissingExtraError, match=r"acl3d\[campaign\]"), optional_dependency("x"):
         raise ModuleNotFoundError("No module named 'ray.util'", name="ray.util")
+
+
+def test_a_ray_campaign_without_ray_is_refused_before_its_directory(tmp_path, monkeypatch, capsys):
+    from acl3d.cli import main
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # [train] installed, [campaign] not
+    assert main(["campaign", "run", "quick", "--out", str(tmp_path / "camp")]) == 1
+    assert not (tmp_path / "camp").exists()
+    assert "'ray'" in capsys.readouterr().err
+    assert main(["campaign", "show", "quick"]) == 0  # what needs no Ray still works

@@ -50,6 +50,14 @@ def check_executor(kind: str, max_parallel: int | None, address: str | None = No
         raise ValueError(f"max_parallel must be an integer >= 1, got {max_parallel!r}")
     if address is not None and kind != "ray":
         raise ValueError("address applies to the ray executor only")
+    if kind == "ray":
+        _ray()  # a missing [campaign] extra fails before the campaign directory is touched
+
+
+def _ray():
+    with optional_dependency("the ray executor"):
+        import ray
+    return ray
 
 
 def make_executor(kind: str, max_parallel: int | None, cpus: int, address: str | None = None):
@@ -173,10 +181,7 @@ class RayExecutor:
     """One Ray task per attempt, declaring `cpus` CPUs; a local Ray instance unless `address`."""
 
     def __init__(self, max_parallel: int | None, cpus: int, address: str | None):
-        with optional_dependency("the ray executor"):
-            import ray
-
-        self._ray = ray
+        ray = self._ray = _ray()
         self._owns = not ray.is_initialized()
         if self._owns:
             kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level="WARNING")

@@ -9,19 +9,33 @@ import sys
 from acl3d.extras import MissingExtraError, optional_dependency
 from acl3d.version import __version__
 
-# subcommand -> (module, one-line help). Modules are imported only when their command runs.
-COMMANDS: dict[str, tuple[str, str]] = {
-    "train": ("acl3d.cli.train", "train a student with a teacher's curriculum on a track"),
-    "evaluate": ("acl3d.cli.evaluate", "evaluate a trained policy on a test set"),
-    "report": ("acl3d.cli.report", "write plots and a video for a run directory"),
+# subcommand -> (module, one-line help, the extra it needs: None = the core install). Modules
+# are imported only when their command runs.
+COMMANDS: dict[str, tuple[str, str, str | None]] = {
+    "train": ("acl3d.cli.train", "train a student with a teacher's curriculum on a track", "train"),
+    "evaluate": ("acl3d.cli.evaluate", "evaluate a trained policy on a test set", "train"),
+    "report": ("acl3d.cli.report", "write plots and a video for a run directory", "train"),
     "render": (
         "acl3d.cli.render",
         "videos (mp4/gif) or PNG strips of a trained, compared or random policy, labelled",
+        "train",
     ),
-    "view": ("acl3d.cli.view", "watch a policy in MuJoCo's interactive viewer (needs a display)"),
-    "toy": ("acl3d.cli.toy", "run a teacher on teachDeepRL's toy environment"),
-    "campaign": ("acl3d.cli.campaign", "benchmark campaigns: many runs on Ray or local processes"),
-    "analyze": ("acl3d.cli.analyze", "statistics, figures and a report for a campaign's runs"),
+    "view": (
+        "acl3d.cli.view",
+        "watch a policy in MuJoCo's interactive viewer (needs a display)",
+        None,
+    ),
+    "toy": ("acl3d.cli.toy", "run a teacher on teachDeepRL's toy environment", None),
+    "campaign": (
+        "acl3d.cli.campaign",
+        "benchmark campaigns: many runs on Ray or local processes",
+        "campaign",
+    ),
+    "analyze": (
+        "acl3d.cli.analyze",
+        "statistics, figures and a report for a campaign's runs",
+        "train",
+    ),
 }
 
 
@@ -31,9 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"acl3d {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, (module, help_text) in COMMANDS.items():
+    for name, (module, help_text, extra) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
-        p.set_defaults(_module=module)
+        p.set_defaults(_module=module, _extra=extra)
         try:
             importlib.import_module(module).add_arguments(p)
         except ModuleNotFoundError as exc:
@@ -52,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_missing", False):
         parser.error(f"command {args.command!r} is not available in this build")
     try:
-        with optional_dependency(f"acl3d {args.command}"):
+        with optional_dependency(f"acl3d {args.command}", args._extra):
             return int(importlib.import_module(args._module).run(args) or 0)
     except MissingExtraError as exc:  # an install without the extra: say which one
         print(f"acl3d {args.command}: error: {exc}", file=sys.stderr)

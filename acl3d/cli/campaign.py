@@ -80,6 +80,9 @@ def _show(args) -> int:
 
 
 def _run(args) -> int:
+    from acl3d.campaign.executors import check_executor
+
+    check_executor(args.executor, args.max_parallel, args.address)  # first: names a missing extra
     from acl3d.campaign.runner import run_campaign
 
     spec = _spec(args)
