@@ -11,7 +11,6 @@ An attempt never runs beside another process working in the same run directory.
 from __future__ import annotations
 
 import os
-import shutil
 import socket
 import time
 import traceback
@@ -19,15 +18,22 @@ from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 from acl3d.campaign.lock import directory_busy, try_lock
-from acl3d.campaign.run_state import FAILURES, LOG_NAME, read_state, record_failure
+from acl3d.campaign.run_state import LOG_NAME, read_state, record_failure
 
 # An attempt of a stopped campaign ends within seconds (SIGTERM: train writes its status).
 WAIT_FOR_HOLDER_S = 120.0
 _POLL_S = 0.2
 
 
-def run_attempt(run_dir: str, options: dict, cpus: int, wait_s: float = WAIT_FOR_HOLDER_S) -> dict:
-    """Train (or resume) the run in `run_dir` with `options`, on `cpus` torch threads.
+def run_attempt(
+    run_dir: str,
+    options: dict,
+    cpus: int,
+    wait_s: float = WAIT_FOR_HOLDER_S,
+    where: str | None = None,
+) -> dict:
+    """Train (or resume) the run in `run_dir` with `options`, on `cpus` torch threads; `where`
+    (e.g. the Ray node) is added to the host and pid the run's log names for the attempt.
 
     Nothing starts while another process works in the run directory (the attempt of a campaign
     process that was killed, still ending; a training started by hand): the attempt waits up to
@@ -40,7 +46,7 @@ def run_attempt(run_dir: str, options: dict, cpus: int, wait_s: float = WAIT_FOR
     run.mkdir(parents=True, exist_ok=True)
     runtime = {"progress_bar": False, "torch_threads": int(cpus)}
     with (run / LOG_NAME).open("a", buffering=1) as log, redirect_stdout(log), redirect_stderr(log):
-        stamp = f"{socket.gethostname()} pid {os.getpid()}"
+        stamp = f"{socket.gethostname()} pid {os.getpid()}" + (f" {where}" if where else "")
         busy = _wait_until_free(run, log.fileno(), wait_s, stamp)
         if busy is not None:
             error = f"{busy} still works in {str(run)!r} after {wait_s:g} s: not started"
@@ -63,9 +69,8 @@ def run_attempt(run_dir: str, options: dict, cpus: int, wait_s: float = WAIT_FOR
         try:
             if state.resumable:
                 result = train(resume=run, steps=int(options["steps"]), **runtime)
-            else:
-                _clear(run)
-                result = train({**options, **runtime, "out": str(run)})
+            else:  # a new run in place of any partial one (its log and failures are kept)
+                result = train({**options, **runtime, "out": str(run)}, overwrite=True)
         except Exception as exc:
             text = traceback.format_exc()
             print(text, flush=True)
@@ -99,14 +104,3 @@ def _wait_until_free(run: Path, log_fd: int, wait_s: float, stamp: str) -> str |
 
 def _now() -> str:
     return time.strftime("%Y-%m-%d %H:%M:%S")
-
-
-def _clear(run: Path) -> None:
-    """Remove a run's partial outputs (no usable checkpoint), keeping its log and failures."""
-    for path in run.iterdir():
-        if path.name in (LOG_NAME, FAILURES):
-            continue
-        if path.is_dir():
-            shutil.rmtree(path)
-        else:
-            path.unlink()

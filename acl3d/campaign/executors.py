@@ -158,9 +158,12 @@ class LocalExecutor:
 
 # ---------------------------------------------------------------------- Ray
 def _ray_attempt(run_dir: str, options: dict, cpus: int) -> dict:
+    import ray
+
     from acl3d.campaign.attempt import run_attempt
 
-    return run_attempt(run_dir, options, cpus)
+    node = ray.get_runtime_context().get_node_id()
+    return run_attempt(run_dir, options, cpus, where=f"ray node {node}")
 
 
 class _TokenAuthNotice(logging.Filter):
