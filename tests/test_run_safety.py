@@ -212,11 +212,13 @@ def test_damaged_latest_checkpoint_falls_back_and_resumes_exactly(finished, copy
     leftovers = ["_teacher_99999_tmp.json", "_teacher_99999_tmp.npz", ".status.json.99999.tmp"]
     for name in leftovers:
         (run / name).write_text("left by a killed writer")
+    (run / ".notes.tmp").write_text("a user's file, not a temporary name acl3d makes")
     assert main(["train", "--resume", str(run)]) == 0
     assert f"skipping damaged checkpoint {LAST}" in capsys.readouterr().err
     assert RunDir(run).status() == "finished"
     assert_same_training(finished, run)
     assert not any((run / name).exists() for name in leftovers)
+    assert (run / ".notes.tmp").exists()
 
 
 def test_no_complete_checkpoint_is_refused_and_changes_nothing(copy, capsys):

@@ -33,6 +33,7 @@ import fcntl
 import json
 import os
 import platform
+import re
 import shutil
 import subprocess
 import sys
@@ -40,6 +41,7 @@ import traceback
 import zipfile
 import zlib
 from collections.abc import Callable
+from contextlib import contextmanager
 from importlib import metadata
 from pathlib import Path
 
@@ -104,35 +106,35 @@ def temp_prefix(prefix: Path) -> Path:
     return prefix.with_name(f"_{prefix.name}_{os.getpid()}_tmp")
 
 
-_TEMP_GLOBS = (".*.tmp", "_*_tmp.*")
+_TEMP_NAME = re.compile(r"^(\..+\.\d+\.tmp|_.+_\d+_tmp(\.\w+)?)$")  # what the two above make
 
 
-def remove_on_failure(paths: list[Path]) -> None:
-    for path in paths:
-        path.unlink(missing_ok=True)
+@contextmanager
+def removed_on_failure(*paths: Path):
+    """Temporary files that must not outlive a failed write (a full disk, an interrupt)."""
+    try:
+        yield
+    except BaseException:
+        for path in paths:
+            path.unlink(missing_ok=True)
+        raise
 
 
 def atomic_write(path: Path, text: str) -> None:
     tmp = temp_path(path)
-    try:
+    with removed_on_failure(tmp):
         tmp.write_text(text)
         atomic_replace(tmp, path)
-    except BaseException:
-        remove_on_failure([tmp])
-        raise
 
 
 def atomic_state_files(prefix: Path, write: Callable[[Path], None]) -> None:
     """`write(tmp)` writes TMP.json + TMP.npz (acl3d's state format); both then replace
     PREFIX.json/.npz, the .npz first so the .json never names arrays that are not there yet."""
     tmp = temp_prefix(prefix)
-    try:
+    with removed_on_failure(tmp.with_suffix(".npz"), tmp.with_suffix(".json")):
         write(tmp)
         for suffix in (".npz", ".json"):
             atomic_replace(tmp.with_suffix(suffix), prefix.with_suffix(suffix))
-    except BaseException:
-        remove_on_failure([tmp.with_suffix(".npz"), tmp.with_suffix(".json")])
-        raise
 
 
 def is_disk_full(exc: BaseException) -> bool:
@@ -232,10 +234,11 @@ def truncate_csv(path: Path, step_column: str, max_step: int) -> None:
         return
     col = rows[0].index(step_column)
     kept = [rows[0]] + [r for r in rows[1:] if _complete(r, rows[0]) and _step(r[col]) <= max_step]
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with tmp.open("w", newline="") as f:
-        csv.writer(f).writerows(kept)
-    atomic_replace(tmp, path)
+    tmp = temp_path(path)
+    with removed_on_failure(tmp):
+        with tmp.open("w", newline="") as f:
+            csv.writer(f).writerows(kept)
+        atomic_replace(tmp, path)
 
 
 def _complete(row: list[str], header: list[str]) -> bool:
@@ -319,7 +322,10 @@ class RunDir:
         """Take the run directory's exclusive lock (RunInUseError if another process has it)."""
         if self._lock_fd is not None:
             return
-        fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        except OSError as exc:
+            raise ValueError(f"run directory {str(self.path)!r}: {exc.strerror}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -348,10 +354,9 @@ class RunDir:
     def remove_temp_files(self) -> None:
         """Temporary files of a writer that was killed (only call with the lock held)."""
         for folder in (self.path, self.checkpoints):
-            for pattern in _TEMP_GLOBS:
-                for path in folder.glob(pattern):
-                    if path.is_file():
-                        path.unlink(missing_ok=True)
+            for path in folder.iterdir() if folder.is_dir() else ():
+                if _TEMP_NAME.match(path.name) and path.is_file():
+                    path.unlink(missing_ok=True)
 
     # ------------------------------------------------------------------ config and status
     def check_new(self, overwrite: bool = False) -> None:
@@ -374,6 +379,7 @@ class RunDir:
             self.check_new(overwrite)  # again, with the lock: another process may have made it
             if overwrite:
                 self.clear()
+                self.remove_temp_files()
             self.write_config(config, **sections)
         except OSError as exc:
             if is_disk_full(exc):

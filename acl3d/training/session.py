@@ -36,7 +36,7 @@ from acl3d.training.run_dir import (
     atomic_state_files,
     check_zip,
     read_state,
-    remove_on_failure,
+    removed_on_failure,
     temp_prefix,
 )
 from acl3d.training.workers import env_keywords, make_env, make_vec_env
@@ -335,12 +335,9 @@ class Session:
                 lambda tmp: save_state(tmp, ckpt.normalization_state(self.vecnorm)),
             )
         tmp = temp_prefix(final.with_suffix("")).with_suffix(".zip")
-        try:
+        with removed_on_failure(tmp):
             self.model.save(tmp)
             atomic_replace(tmp, final)
-        except BaseException:
-            remove_on_failure([tmp])
-            raise
 
     # ------------------------------------------------------------------ evaluation
     def run_eval(self) -> EvalResult:
