@@ -137,8 +137,11 @@ def verify_checkpoint(folder: Path, config: TrainConfig) -> None:
         check_zip(folder / "model.zip", ckpt.MODEL_MEMBERS)
         for prefix in prefixes:
             read_state(folder / prefix)
-        if config.student == "sac" and config.save_replay_buffer:
-            check_zip(folder / "replay_buffer.npz")
+        buffer = folder / "replay_buffer.npz"  # off-policy students save theirs
+        if buffer.exists() or (
+            config.save_replay_buffer and not students.is_on_policy(config.student)
+        ):
+            check_zip(buffer)
     except ValueError as exc:
         raise DamagedCheckpoint(str(exc)) from None
 
