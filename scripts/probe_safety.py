@@ -292,6 +292,12 @@ def tracebacks(probe: Probe) -> list[Check]:
             refused(proc, "out", f"--out {out.relative_to(probe.root)} (at/under a file)")
         )
 
+    if os.geteuid() != 0:  # root writes through permissions: tests/ inject EROFS instead
+        read_only = probe.path("read_only")
+        read_only.mkdir(mode=0o555)
+        proc = probe.acl3d("train", *TINY, *STEPS, "--out", read_only / "run", timeout=60)
+        checks.append(refused(proc, "out", "--out in a read-only folder"))
+
     run = probe.finished_run()
     truncate(run / "teacher.npz")
     proc = probe.acl3d("evaluate", run, "--out", probe.path("e.csv"), timeout=120)

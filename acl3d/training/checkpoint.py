@@ -17,6 +17,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d.teachers.base import load_state, save_state
+from acl3d.training.run_dir import read_state
 
 _RMS = ("mean", "var", "count")
 MODEL_MEMBERS = ("data", "policy.pth")  # what every SB3 model zip holds
@@ -108,7 +109,7 @@ def observation_normalizer(model_path):
     path = normalization_path(model_path)
     if not path.with_suffix(".json").exists():
         return None
-    state = load_state(path)
+    state = read_state(path)  # a damaged file is named
     if not state["norm_obs"]:
         return None
     mean = np.asarray(state["obs_rms"]["mean"])
