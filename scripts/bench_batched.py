@@ -1,19 +1,20 @@
-"""Batched env speed: N envs in one process vs N single envs in a loop vs SubprocVecEnv.
+"""Batched env speed: N envs through Gymnasium's vector API vs N single envs vs SubprocVecEnv.
 
     python scripts/bench_batched.py                 # N = 1, 4, 16, 64; threads 1 and 2
     python scripts/bench_env.py --batched           # the same, after the single-env table
 
-Total env steps/s with uniform random actions (classic biped, Stump Tracks h=1 sp=3; resets of
-finished envs are not timed, for all columns alike), measured in interleaved rounds in this run
-(best round per cell). "per-env / raw physics" is the batched env's wall time per env step
-(threads=1) over the time `mj_step` itself took for those steps. SubprocVecEnv (forkserver,
-N workers) is skipped above --max-subproc workers.
+Total env steps/s with uniform random actions (classic biped, Stump Tracks h=1 sp=3), through
+`gymnasium.make_vec(..., vectorization_mode="vector_entry_point", autoreset_mode="SameStep")`
+(its resets of finished sub-envs are timed, as a user sees them), measured in interleaved rounds
+in this run (best round per cell) and given as a ratio to one `gymnasium.make` env. "per-env /
+raw physics" is the vector env's wall time per env step (threads=1) over the time the physics
+step itself (`BatchPhysics.step`: MuJoCo's batch, same models, same states) took for those steps.
+SubprocVecEnv (forkserver, N workers) is skipped above --max-subproc workers.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 import time
 
@@ -22,35 +23,56 @@ import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco 
 # isort: split
 import gymnasium as gym
 import numpy as np
-from bench_env import PhysicsClock  # scripts/ is on sys.path when a script runs
 from stable_baselines3.common.vec_env import SubprocVecEnv
 
-from acl3d.envs.batched import BatchedEnvs
+from acl3d.envs.physics import BatchPhysics
 
 TASK = {"stump_height": 1.0, "obstacle_spacing": 3.0}
 ENV_ID = "acl3d/StumpTracks-v0"
 
 
+class BatchClock:
+    """Times `BatchPhysics.step` (the physics of every sub-env) inside the vector env's steps."""
+
+    def __init__(self):
+        self.seconds = 0.0
+        self._step = BatchPhysics.step
+
+    def __enter__(self):
+        clock, step = self, self._step
+
+        def timed(physics):
+            t0 = time.perf_counter()
+            step(physics)
+            clock.seconds += time.perf_counter() - t0
+
+        BatchPhysics.step = timed
+        return self
+
+    def __exit__(self, *exc):
+        BatchPhysics.step = self._step
+
+
 def batched_rate(n: int, threads: int, steps: int, clock: bool = False) -> tuple[float, float]:
-    """(env steps/s, raw physics steps/s or nan) of a batched env of n sub-envs."""
-    batch = BatchedEnvs(ENV_ID, n, threads=threads)
-    batch.reset(seed=0, options={"task": TASK})
+    """(env steps/s, raw physics steps/s or nan) of a vector env of n sub-envs."""
+    venv = gym.make_vec(
+        ENV_ID,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        threads=threads,
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+    )
+    venv.reset(seed=0, options={"task": TASK})
     rng = np.random.default_rng(0)
     rounds = max(1, steps // n)
-    actions = rng.uniform(-1, 1, (rounds, n, batch.action_size))
-    elapsed, physics = 0.0, 0.0
-    with PhysicsClock() if clock else contextlib.nullcontext() as timer:
+    actions = rng.uniform(-1, 1, (rounds, n, venv.single_action_space.shape[0]))
+    with BatchClock() as timer:
+        t0 = time.perf_counter()
         for a in actions:
-            t0 = time.perf_counter()
-            _, _, terminated, truncated, _ = batch.step(a)
-            elapsed += time.perf_counter() - t0
-            before = timer.seconds if clock else 0.0
-            for i in np.flatnonzero(terminated | truncated):
-                batch.reset_one(int(i))
-            if clock:
-                physics += timer.seconds - before  # resets' physics is not part of the steps
-        raw = rounds * n / (timer.seconds - physics) if clock else float("nan")
-    batch.close()
+            venv.step(a)
+        elapsed = time.perf_counter() - t0
+    venv.close()
+    raw = rounds * n / timer.seconds if clock else float("nan")
     return rounds * n / elapsed, raw
 
 
@@ -62,15 +84,13 @@ def loop_rate(n: int, steps: int) -> float:
     rng = np.random.default_rng(0)
     rounds = max(1, steps // n)
     actions = rng.uniform(-1, 1, (rounds, n, 4))
-    elapsed = 0.0
+    t0 = time.perf_counter()
     for a in actions:
-        t0 = time.perf_counter()
-        results = [env.step(a[i]) for i, env in enumerate(envs)]
-        elapsed += time.perf_counter() - t0
-        for env, r in zip(envs, results):
-            if r[2] or r[3]:
+        for i, env in enumerate(envs):
+            _, _, terminated, truncated, _ = env.step(a[i])
+            if terminated or truncated:
                 env.reset()
-    return rounds * n / elapsed
+    return rounds * n / (time.perf_counter() - t0)
 
 
 def _make_single():

@@ -9,7 +9,7 @@ from gymnasium.vector import AutoresetMode
 
 import acl3d  # noqa: F401  (registers the ids)
 from acl3d.envs.batched import BatchedEnvs
-from acl3d.envs.batched_sb3 import BatchedVecEnv
+from acl3d.vec.batched_sb3 import BatchedVecEnv
 
 PARKOUR_WATER = {
     "input_vector": [0.2, -0.3, 0.1],

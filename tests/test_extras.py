@@ -59,7 +59,7 @@ def error(call):
     return None
 out["errors"]["train"] = error(lambda: __import__("acl3d.training", fromlist=["x"]).train)
 out["errors"]["dmc"] = error(lambda: gym.make("acl3d/StumpTracks-v0", body="dmc:ant"))
-out["errors"]["sb3"] = error(lambda: __import__("acl3d.envs.batched_sb3"))
+out["errors"]["sb3"] = error(lambda: __import__("acl3d.vec.batched_sb3"))
 out["cli_train"] = main(["train", "--steps", "1000", "--out", "unused-run"])
 out["cli_campaign"] = main(["campaign", "run", "quick", "--out", "unused-campaign"])
 print("RESULT " + json.dumps(out))

@@ -23,12 +23,20 @@ TIERS: tuple[tuple[str, ...], ...] = (
     ("terrain", "bodies", "teachers", "toy", "playback"),
     ("envs",),
     ("acl3d",),
+    ("vec",),
     ("training",),
     ("campaign", "analysis"),
     ("cli",),
     ("__main__",),
 )
 TIER = {component: rank for rank, names in enumerate(TIERS) for component in names}
+# Third-party packages a component may import only from this tier up: the environments stay
+# Gymnasium-only (no learning library), Stable-Baselines3 enters with the vec envs.
+THIRD_PARTY_FROM: dict[str, str] = {
+    "stable_baselines3": "vec",
+    "torch": "teachers",
+    "ray": "campaign",
+}
 
 
 def _modules() -> dict[str, Path]:
@@ -42,6 +50,17 @@ def _modules() -> dict[str, Path]:
 
 
 MODULES = _modules()
+
+
+def _third_party(path: Path) -> set[str]:
+    """Top-level names of the non-acl3d packages a module imports (anywhere in it)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            found.add(node.module.split(".")[0])
+    return found - {"acl3d"}
 
 
 def _resolve(name: str) -> str | None:
@@ -103,6 +122,18 @@ def test_no_module_imports_a_layer_above_it_or_a_peer():
             if own != other and TIER.get(other, -1) >= TIER.get(own, -1):
                 bad.append(f"{module} -> {target}")
     assert not bad, "imports against the layers:\n" + "\n".join(sorted(bad))
+
+
+def test_third_party_packages_enter_at_their_layer():
+    """No environment module imports Stable-Baselines3 or torch, and so on (`THIRD_PARTY_FROM`)."""
+    bad = []
+    for module, path in MODULES.items():
+        own = TIER.get(component(module), len(TIERS))
+        for package in _third_party(path) & set(THIRD_PARTY_FROM):
+            lowest = THIRD_PARTY_FROM[package]
+            if own < TIER[lowest] or (own == TIER[lowest] and component(module) != lowest):
+                bad.append(f"{module} imports {package} (allowed from {lowest} up)")
+    assert not bad, "third-party imports below their layer:\n" + "\n".join(sorted(bad))
 
 
 def _code_strings(path: Path) -> list[str]:

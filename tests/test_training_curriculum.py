@@ -221,7 +221,7 @@ def check_batched_counts(venv, controller, n_steps: int, tasks_ahead: int) -> in
 
 
 def test_batched_sub_envs_pull_tasks_at_their_own_reset():
-    from acl3d.envs.batched_sb3 import BatchedVecEnv
+    from acl3d.vec.batched_sb3 import BatchedVecEnv
 
     n = 3
     controller = StumpController(needs={"step_rewards"})

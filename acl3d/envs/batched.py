@@ -1,7 +1,7 @@
 """N acl3d environments of one id in one process, stepped together.
 
 `BatchedEnvs` is the engine under the Gymnasium vector env (`acl3d.envs.batched_vector`) and
-the Stable-Baselines3 vec env (`acl3d.envs.batched_sb3`). Each sub-env is a full single env
+the Stable-Baselines3 vec env (`acl3d.vec.batched_sb3`). Each sub-env is a full single env
 (`TrackEnv` / `ParkourEnv`, built by the id's own entry point) with its own model, terrain, task
 and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i plays.
 Resets go through the sub-env's own `reset`.

@@ -17,12 +17,15 @@ A teacher is any acl3d teacher, or any object with `sample_task()` and
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from typing import Protocol
 
 import gymnasium as gym
 import numpy as np
 
 from acl3d import validation
+from acl3d.curriculum_profile import CurriculumProfile
 
 INFO_KEY = "curriculum"
 
@@ -101,10 +104,7 @@ class CurriculumWrapper(gym.Wrapper):
         if from_teacher:
             options["task"] = np.asarray(self.teacher.sample_task(), dtype=np.float32)
         obs, info = self.env.reset(seed=seed, options=options)
-        task = options["task"]
-        if isinstance(task, dict):  # a named task: report the vector the env built
-            task = self.env.unwrapped.task_vector
-        self._task, self._from_teacher = np.asarray(task, dtype=np.float32), from_teacher
+        self._task, self._from_teacher = played_task(self.env, options["task"]), from_teacher
         self._return, self._length = 0.0, 0
         self._initial_obs = np.array(obs, copy=True)
         return obs, info
@@ -128,3 +128,116 @@ class CurriculumWrapper(gym.Wrapper):
             if self._from_teacher:
                 self.teacher.episodic_update(report["task"], report["return"], report["success"])
         return obs, reward, terminated, truncated, info
+
+
+def played_task(env: gym.Env, task) -> np.ndarray:
+    """The task vector an episode played: `task` as given in the reset options, or, for a
+    named task ({name: value}), the vector the env built from it."""
+    if isinstance(task, dict):
+        return env.unwrapped.task_vector
+    return np.asarray(task, dtype=np.float32)
+
+
+def success_return(env: gym.Env) -> float:
+    """The return above which an episode of `env` masters its task: its curriculum profile's
+    (a Gymnasium env without one: the default profile's)."""
+    profile = getattr(env.unwrapped, "curriculum_profile", None) or CurriculumProfile()
+    return profile.success_return
+
+
+class TaskQueue:
+    """One curriculum worker's side of the protocol: the tasks queued for it and its running
+    episode, reported when the episode ends.
+
+    Shared by a single env behind `acl3d.training.curriculum.CurriculumEnv` and by each sub-env
+    of the batched SB3 vec env. A reset that names no task plays the queue's head; the episode
+    report (`episode_report`, in `info["curriculum"]`, plus SB3's `info["episode"]`) takes its
+    success from the env's info, else from the return against the curriculum profile.
+    """
+
+    def __init__(self, success_return: float):
+        self.success_return = success_return
+        self.tasks: deque[np.ndarray] = deque()
+        self.task: np.ndarray | None = None  # of the running episode
+        self.initial_obs = None
+        self._start_time = 0.0
+
+    def push(self, task) -> int:
+        """Queue a task (flat vector in task-space order); returns the queue length."""
+        self.tasks.append(np.array(task, dtype=np.float32).reshape(-1))
+        return len(self.tasks)
+
+    def options(self, options) -> dict:
+        """Reset options naming a task: the given one, else the queue's head (RuntimeError if
+        the queue is empty)."""
+        options = dict(options or {})
+        if "task" not in options:
+            if not self.tasks:
+                raise RuntimeError(
+                    "no task queued: push_task() before every reset that does not pass "
+                    "options={'task': ...}"
+                )
+            options["task"] = self.tasks.popleft()
+        return options
+
+    def begin(self, task, obs) -> None:
+        """An episode started on `task` with first observation `obs`."""
+        self.task = task
+        self.initial_obs = np.array(obs, copy=True)
+        self._start_time = time.perf_counter()
+
+    def report(self, info: dict, episode_return: float, length: int, terminated, truncated):
+        """Describe the episode that just ended in its last step's `info`."""
+        success = info.get("success", episode_return > self.success_return)
+        info[INFO_KEY] = episode_report(
+            self.task,
+            episode_return,
+            length,
+            success,
+            bool(truncated and not terminated),
+            self.initial_obs,
+        )
+        # SB3 reads this key (as Monitor writes it) for rollout/ep_rew_mean
+        elapsed = round(time.perf_counter() - self._start_time, 6)
+        info["episode"] = {"r": float(episode_return), "l": int(length), "t": elapsed}
+
+    def get_state(self, episode_return: float, length: int, last_obs, env_state, size: int):
+        """The worker's checkpoint layout (the same for every kind of worker, so a run may
+        resume on another vec env kind); `size` is the task vector's length."""
+        return {
+            "queue": np.array(list(self.tasks), dtype=np.float32).reshape(len(self.tasks), size),
+            "task": None if self.task is None else np.asarray(self.task, dtype=np.float32),
+            "return": float(episode_return),
+            "length": int(length),
+            "initial_obs": self.initial_obs,
+            "last_obs": last_obs,
+            "env": env_state,
+        }
+
+    def set_state(self, state: dict) -> None:
+        """The queue and running episode of a `get_state()` (the caller restores the rest)."""
+        self.tasks = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
+        self.task = None if state["task"] is None else np.asarray(state["task"], np.float32)
+        self.initial_obs = state["initial_obs"]
+
+
+class CurriculumWorker:
+    """The methods a main-side curriculum calls on each worker (through SB3's `env_method`);
+    the worker keeps its protocol state in `self.queue` (a `TaskQueue`)."""
+
+    queue: TaskQueue
+
+    def push_task(self, task) -> int:
+        """Queue a task (flat vector in task-space order); returns the queue length."""
+        return self.queue.push(task)
+
+    def queued_tasks(self) -> int:
+        return len(self.queue.tasks)
+
+    def clear_tasks(self) -> None:
+        """Drop queued tasks (an evaluation env starting a new test pass)."""
+        self.queue.tasks.clear()
+
+    def success_return(self) -> float:
+        """The return above which an episode masters its task (the env's curriculum profile)."""
+        return self.queue.success_return

@@ -22,7 +22,6 @@ learn) are flagged when their task is sampled; the flag follows the task through
 
 from __future__ import annotations
 
-import time
 import traceback
 from collections import deque
 from dataclasses import dataclass
@@ -31,10 +30,15 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from acl3d.envs.curriculum_wrapper import (
+    INFO_KEY,
+    CurriculumWorker,
+    TaskQueue,
+    played_task,
+    success_return,
+)
 from acl3d.envs.env_state import restore_wrappers
-from acl3d.envs.profiles import SUCCESS_RETURN as SUCCESS_THRESHOLD
 
-INFO_KEY = "curriculum"
 ERROR_KEY = "acl3d_worker_error"
 
 
@@ -56,59 +60,35 @@ class Episode:
     total_steps: int
 
 
-class CurriculumEnv(gym.Wrapper):
+class CurriculumEnv(gym.Wrapper, CurriculumWorker):
     """Worker-side wrapper: pulls queued tasks at reset, reports episode outcomes in `info`.
 
     A reset whose `options` already hold a `"task"` (evaluation, rendering) plays that task and
     leaves the queue alone; any other reset needs a queued task and fails loudly without one, so a
-    curriculum can never silently run an environment's default task.
+    curriculum can never silently run an environment's default task. The queue and the episode
+    report are the protocol every worker shares (`acl3d.envs.curriculum_wrapper.TaskQueue`).
     """
 
     def __init__(self, env: gym.Env):
         super().__init__(env)
-        self._queue: deque[np.ndarray] = deque()
-        self._task: np.ndarray | None = None
+        self.queue = TaskQueue(success_return(env))
         self._return = 0.0
         self._length = 0
-        self._initial_obs = None
         self._last_obs = None
-        self._start_time = 0.0
         self._error: str | None = None
-
-    def push_task(self, task) -> int:
-        """Queue a task (flat vector in task-space order); returns the queue length."""
-        self._queue.append(np.array(task, dtype=np.float32).reshape(-1))
-        return len(self._queue)
-
-    def queued_tasks(self) -> int:
-        return len(self._queue)
-
-    def clear_tasks(self) -> None:
-        """Drop queued tasks (an evaluation env starting a new test pass)."""
-        self._queue.clear()
 
     def reset(self, *, seed=None, options=None):
         if self._error is not None:  # stay inert after a crash: the main side stops the run
             return self._placeholder_obs(), {ERROR_KEY: self._error}
         try:
-            options = dict(options or {})
-            if "task" not in options:
-                if not self._queue:
-                    raise RuntimeError(
-                        "CurriculumEnv.reset: no task queued; the main process must push_task() "
-                        "before every reset that does not pass options={'task': ...}"
-                    )
-                options["task"] = self._queue.popleft()
-            task = options["task"]
+            options = self.queue.options(options)
             obs, info = self.env.reset(seed=seed, options=options)
         except Exception:
             self._error = traceback.format_exc()
             return self._placeholder_obs(), {ERROR_KEY: self._error}
-        self._task = task
+        self.queue.begin(played_task(self.env, options["task"]), obs)
         self._return, self._length = 0.0, 0
-        self._initial_obs = np.array(obs, copy=True)
-        self._last_obs = self._initial_obs
-        self._start_time = time.perf_counter()
+        self._last_obs = self.queue.initial_obs
         return obs, info
 
     def step(self, action):
@@ -123,19 +103,7 @@ class CurriculumEnv(gym.Wrapper):
         self._length += 1
         self._last_obs = obs
         if terminated or truncated:
-            success = bool(info.get("success", self._return > SUCCESS_THRESHOLD))
-            task = self._task
-            info[INFO_KEY] = {
-                "task": task if isinstance(task, dict) else np.asarray(task, dtype=np.float32),
-                "return": self._return,
-                "length": self._length,
-                "success": success,
-                "truncated": bool(truncated and not terminated),
-                "initial_obs": self._initial_obs,
-            }
-            # SB3 reads this key (as Monitor writes it) for rollout/ep_rew_mean.
-            elapsed = time.perf_counter() - self._start_time
-            info["episode"] = {"r": self._return, "l": self._length, "t": round(elapsed, 6)}
+            self.queue.report(info, self._return, self._length, terminated, truncated)
         return obs, reward, terminated, truncated, info
 
     def get_state(self) -> dict:
@@ -144,25 +112,23 @@ class CurriculumEnv(gym.Wrapper):
         may resume on another vec env kind). JSON scalars and numpy arrays; `"env"` is None for
         an env without `get_state()` (its episode then cannot be continued)."""
         inner = self.env.unwrapped
-        return {
-            "queue": np.stack(self._queue) if self._queue else np.zeros((0, 0), np.float32),
-            "task": None if self._task is None else np.asarray(self._task, dtype=np.float32),
-            "return": self._return,
-            "length": self._length,
-            "initial_obs": self._initial_obs,
-            "last_obs": self._last_obs,
-            "env": inner.get_state() if hasattr(inner, "get_state") else None,
-        }
+        size = len(self.queue.tasks[0]) if self.queue.tasks else 0
+        return self.queue.get_state(
+            self._return,
+            self._length,
+            self._last_obs,
+            inner.get_state() if hasattr(inner, "get_state") else None,
+            size,
+        )
 
     def set_state(self, state: dict) -> None:
         """Inverse of `get_state()` (on a worker built with the same arguments)."""
         if state["env"] is not None:
             self.env.unwrapped.set_state(state["env"])
             restore_wrappers(self.env, int(state["length"]))
-        self._queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
-        self._task = None if state["task"] is None else np.asarray(state["task"], np.float32)
+        self.queue.set_state(state)
         self._return, self._length = float(state["return"]), int(state["length"])
-        self._initial_obs, self._last_obs = state["initial_obs"], state["last_obs"]
+        self._last_obs = state["last_obs"]
         self._error = None
 
     def _placeholder_obs(self):
@@ -185,7 +151,7 @@ class CurriculumVecEnv(VecEnvWrapper):
     `maybe_sample_periodically`, `sample_training_task`). It must sit directly on the worker
     `VecEnv` (below any VecNormalize) so that it sees raw observations and rewards.
 
-    On an in-process batched env (`acl3d.envs.batched_sb3.BatchedVecEnv`, which has a
+    On an in-process batched env (`acl3d.vec.batched_sb3.BatchedVecEnv`, which has a
     `task_source`) nothing is queued: each sub-env pulls its next task from `next_task` at its
     own reset, after this wrapper was handed the step's finished episodes
     (`episodes_finished`), so the teacher always knows an episode's outcome before it samples

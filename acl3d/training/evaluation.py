@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.vec_env import VecEnv
 
-from acl3d.training.curriculum import INFO_KEY, SUCCESS_THRESHOLD, raise_worker_errors
+from acl3d.training.curriculum import INFO_KEY, raise_worker_errors
 
 
 @dataclass
@@ -27,11 +27,12 @@ class EvalResult:
     returns: np.ndarray  # (N,)
     lengths: np.ndarray  # (N,)
     successes: np.ndarray  # (N,) env's own success flag
+    success_return: float  # the env's curriculum profile's (TeachMyAgent's 230 on the tracks)
 
     @property
     def mastered_pct(self) -> float:
-        """100 x share of test tasks with return strictly above 230."""
-        return float(100.0 * np.mean(self.returns > SUCCESS_THRESHOLD))
+        """100 x share of test tasks with return strictly above the success return."""
+        return float(100.0 * np.mean(self.returns > self.success_return))
 
     @property
     def mean_return(self) -> float:
@@ -135,7 +136,8 @@ def _play(predict, venv: VecEnv, tasks, seed: int, episodes_per_task: int) -> Ev
                 successes[item] = ep["success"]
                 done_count += 1
             current[i], pending[i] = pending[i], push(int(i))
-    return EvalResult(tasks[order].astype(np.float64), returns, lengths, successes)
+    threshold = float(venv.env_method("success_return", indices=[0])[0])
+    return EvalResult(tasks[order].astype(np.float64), returns, lengths, successes, threshold)
 
 
 def make_predict(model, deterministic: bool, normalize_obs=None):

@@ -1,6 +1,6 @@
 """Environment factories and worker vector envs for training and evaluation.
 
-acl3d envs default to the batched env (`acl3d.envs.batched_sb3.BatchedVecEnv`: all sub-envs in
+acl3d envs default to the batched env (`acl3d.vec.batched_sb3.BatchedVecEnv`: all sub-envs in
 this process, physics on one thread per core), or to several worker processes each stepping a
 batched env (`envs_per_worker`). Other Gymnasium ids, and `vec_env="dummy"|"subproc"`, get one
 env per `CurriculumEnv` worker. Environments in worker processes are built from a picklable
@@ -142,7 +142,7 @@ def is_batchable(env_name: str) -> bool:
 
 def make_batched_env(env_name, body, n_envs, env_kwargs, render_mode, curriculum, threads):
     """Factory of one batched env (also run inside worker processes)."""
-    from acl3d.envs.batched_sb3 import BatchedVecEnv
+    from acl3d.vec.batched_sb3 import BatchedVecEnv
 
     kwargs = dict(env_kwargs or {})
     if body is not None:
@@ -160,7 +160,7 @@ def _batched_vec_env(
             env_name, body, n_envs, env_kwargs, render_mode, curriculum, threads
         )
     from acl3d.envs.batched import default_threads
-    from acl3d.envs.batched_workers import BatchedSubprocVecEnv
+    from acl3d.vec.batched_workers import BatchedSubprocVecEnv
 
     sizes = [min(per_worker, n_envs - lo) for lo in range(0, n_envs, per_worker)]
     threads = threads or max(1, default_threads() // len(sizes))

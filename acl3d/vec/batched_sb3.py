@@ -17,69 +17,45 @@ With `curriculum=True` and neither, a reset fails loudly; finished episodes are 
 
 from __future__ import annotations
 
-import time
-from collections import deque
-
 import numpy as np
 
 from acl3d.envs.batched import BatchedEnvs
+from acl3d.envs.curriculum_wrapper import CurriculumWorker, TaskQueue, played_task
 from acl3d.extras import optional_dependency
 
 with optional_dependency("the batched env's Stable-Baselines3 VecEnv"):
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-INFO_KEY = "curriculum"
 
-
-class SubEnv:
-    """Sub-env i of a `BatchedVecEnv`: task queue, running episode, and its single env."""
+class SubEnv(CurriculumWorker):
+    """Sub-env i of a `BatchedVecEnv`: its curriculum worker (`TaskQueue`) and its single env."""
 
     def __init__(self, owner: BatchedVecEnv, index: int):
         self._owner, self._index = owner, index
         self.env = owner.batch.envs[index]
-        self.queue: deque[np.ndarray] = deque()
-        self.task = None
-        self.initial_obs = None
-        self.start_time = 0.0
+        self.queue = TaskQueue(self.env.curriculum_profile.success_return)
 
     # ------------------------------------------------------------------ CurriculumEnv API
-    def push_task(self, task) -> int:
-        self.queue.append(np.array(task, dtype=np.float32).reshape(-1))
-        return len(self.queue)
-
-    def queued_tasks(self) -> int:
-        return len(self.queue)
-
-    def clear_tasks(self) -> None:
-        self.queue.clear()
-
     def get_state(self) -> dict:
         """As `CurriculumEnv.get_state`: queue, running episode and the single env's state."""
         if not hasattr(self.env, "get_state"):
             raise ValueError(f"{type(self.env).__name__} has no get_state(): cannot checkpoint it")
         self._owner.batch.sync(self._index)
-        length = int(self._owner.batch.elapsed[self._index])
-        return {
-            "queue": np.array(list(self.queue), dtype=np.float32).reshape(
-                len(self.queue), len(self.env.task_vector)
-            ),
-            "task": None if self.task is None else np.asarray(self.task, dtype=np.float32),
-            "return": self.episode_return,
-            "length": length,
-            "initial_obs": self.initial_obs,
-            "last_obs": self.last_obs,
-            "env": self.env.get_state(),
-        }
+        return self.queue.get_state(
+            self.episode_return,
+            int(self._owner.batch.elapsed[self._index]),
+            self.last_obs,
+            self.env.get_state(),
+            len(self.env.task_vector),
+        )
 
     def set_state(self, state: dict) -> None:
         self.env.set_state(state["env"])
         batch = self._owner.batch
         batch.restored(self._index)
-        self.queue = deque(np.asarray(t, dtype=np.float32) for t in state["queue"])
-        self.task = None if state["task"] is None else np.asarray(state["task"], np.float32)
+        self.queue.set_state(state)
         self._owner.returns[self._index] = float(state["return"])
         batch.elapsed[self._index] = int(state["length"])
-        self.initial_obs = state["initial_obs"]
         if state["last_obs"] is not None:
             if self._owner.last_obs is None:
                 owner = self._owner
@@ -108,37 +84,19 @@ class SubEnv:
         """Start an episode: the task from `options`, else the queue, else the task source."""
         owner = self._owner
         options = dict(options or {})
-        if "task" not in options:
-            if self.queue:
-                options["task"] = self.queue.popleft()
-            elif owner.task_source is not None:
-                options["task"] = np.asarray(owner.task_source.next_task(self._index), np.float32)
-            elif owner.curriculum:
-                raise RuntimeError(
-                    f"sub-env {self._index}: no task queued and no task source; push_task() "
-                    "before every reset that does not pass options={'task': ...}"
-                )
+        if "task" not in options and not self.queue.tasks and owner.task_source is not None:
+            options["task"] = np.asarray(owner.task_source.next_task(self._index), np.float32)
+        if "task" in options or self.queue.tasks or owner.curriculum:
+            options = self.queue.options(options)
         obs, info = owner.batch.reset_one(self._index, seed, options)
-        self.task = options.get("task", self.env.task_vector)
+        self.queue.begin(played_task(self.env, options.get("task", self.env.task_vector)), obs)
         owner.returns[self._index] = 0.0
-        self.initial_obs = obs
-        self.start_time = time.perf_counter()
         return obs, info
 
     def episode_report(self, info: dict, terminated: bool, truncated: bool) -> None:
         """Add the finished episode to its last step's info, as `CurriculumEnv` does."""
         length = int(self._owner.batch.elapsed[self._index])
-        task = self.task
-        info[INFO_KEY] = {
-            "task": task if isinstance(task, dict) else np.asarray(task, dtype=np.float32),
-            "return": self.episode_return,
-            "length": length,
-            "success": bool(info.get("success", False)),
-            "truncated": bool(truncated and not terminated),
-            "initial_obs": self.initial_obs,
-        }
-        elapsed = round(time.perf_counter() - self.start_time, 6)
-        info["episode"] = {"r": self.episode_return, "l": length, "t": elapsed}
+        self.queue.report(info, self.episode_return, length, terminated, truncated)
 
 
 class BatchedVecEnv(VecEnv):
