@@ -24,7 +24,7 @@ from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
 from acl3d.envs.climbing import Climbing
 from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
-from acl3d.envs.track_task import FAIL_REWARD, TrackTask
+from acl3d.envs.track_task import FAIL_REWARD, TrackTask, torque_use
 from acl3d.envs.water import Water
 
 SURVIVAL_STEPS = 600
@@ -257,8 +257,7 @@ class ParkourTask(TrackTask):
         reward = shaping - rows.prev_shaping
         rows.prev_shaping[:] = shaping
         if alive:
-            cost = np.minimum(np.abs(actions), 1.0).sum(axis=1)
-            reward -= self.body.torque_cost_per_unit * cost
+            reward -= self.body.torque_cost_per_unit * torque_use(actions)
         rows.critical_contact[:] = self.critical_touch(data)
         fail = rows.critical_contact | (x < 0.0)
         terminated = fail | (x > self.end_x) | (died and self.end_on_death)

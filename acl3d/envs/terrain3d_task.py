@@ -22,7 +22,7 @@ from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import Lidar
-from acl3d.envs.track_task import ANGLE_PENALTY, FAIL_REWARD, TrackTask
+from acl3d.envs.track_task import ANGLE_PENALTY, FAIL_REWARD, TrackTask, torque_use
 
 PROGRESS_GAIN = 15.0  # reward per metre along x (the course is ~22 m from spawn to finish)
 HEADING_PENALTY = 5.0  # per radian of yaw away from +x
@@ -77,7 +77,7 @@ class Terrain3DTask(TrackTask):
         s = self.potential(physics, x, obs)
         reward = s - rows.prev_shaping
         rows.prev_shaping[:] = s
-        reward -= self.body.torque_cost_per_unit * np.minimum(np.abs(actions), 1.0).sum(axis=1)
+        reward -= self.body.torque_cost_per_unit * torque_use(actions)
         critical = self.touched(physics, self._critical_sensors).any(axis=1)
         rows.critical_contact[:] = critical
         y = self._pose(physics, obs)[0]

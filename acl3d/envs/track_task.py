@@ -38,11 +38,18 @@ PROGRESS_GAIN = 130.0 / 30.0  # reward per metre of forward progress
 ANGLE_PENALTY = 5.0
 TOUCH_SENSOR_PREFIX = "touch_"  # contact sensors on the body's flagged and critical geoms
 _BADQACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+_PLANAR_VELOCITY_GAINS = np.array([0.12, 0.08])  # vx, vz in the head observation
+_LOW_HIGH = np.array([-1.0, 1.0])  # a force range from a cap (x -1 is exact negation)
 
 
 def touch_sensor_name(geom: str) -> str:
     """The contact sensor that counts the contacts of the (prefixed) geom `geom`."""
     return TOUCH_SENSOR_PREFIX + geom
+
+
+def torque_use(actions: np.ndarray) -> np.ndarray:
+    """(N,) sum of |a| clipped at 1 per env: what the torque cost is proportional to."""
+    return np.add.reduce(np.minimum(np.abs(actions), 1.0), axis=1)
 
 
 class EpisodeRows:
@@ -95,8 +102,9 @@ class TrackTask:
         width = 2 + bound.has_contact_flag.astype(int)
         starts = np.concatenate(([0], np.cumsum(width)[:-1]))
         self._motor_size = int(width.sum())
-        self._angle_cols, self._speed_cols = starts, starts + 1
-        self._contact_cols = (starts + 2)[bound.has_contact_flag]
+        # the motor state's columns of [angles, speeds, contact flags]
+        contact_cols = (starts + 2)[bound.has_contact_flag]
+        self._motor_order = np.concatenate((starts, starts + 1, contact_cols))
         self._inv_speeds = 1.0 / bound.speeds
         self._contact_sensors = self._sensor_adr(model, bound.contact_geom_ids)
         self._critical_sensors = self._sensor_adr(model, bound.critical_geom_ids)
@@ -139,10 +147,10 @@ class TrackTask:
         semantics): `caps[i]` is env i's `actuator_forcerange` (its model's), `controls` (N, nu)."""
         motors = actions[:, : self._nb_motors]
         magnitude = np.minimum(np.abs(motors), 1.0) * self.body.torque
+        ranges = magnitude[:, :, None] * _LOW_HIGH  # (N, motors, 2): [-cap, cap]
         index = self._ctrl_index
-        for cap, m in zip(caps, magnitude):
-            cap[index, 0] = -m
-            cap[index, 1] = m
+        for cap, r in zip(caps, ranges):
+            cap[index] = r
         controls[:, index] = self.bound.speeds * np.sign(motors)
 
     def begin_episode(self) -> None:
@@ -167,11 +175,11 @@ class TrackTask:
         v = self.bound.root_dof
         # nose-up positive (rotation about -y); math.atan2 per element, as a single env
         out[:, 0] = [math.atan2(a, b) for a, b in zip(r[:, 6].tolist(), r[:, 0].tolist())]
-        out[:, 2] = 0.12 * qv[:, v]
-        if self.body.planar:
-            out[:, 1] = 2.0 * qv[:, v + 2] / 50.0
-            out[:, 3] = 0.08 * qv[:, v + 1]
+        if self.body.planar:  # 2 omega / 50 is omega / 25 to the bit (2 omega is exact)
+            out[:, 1] = qv[:, v + 2] / 25.0
+            out[:, 2:4] = qv[:, v : v + 2] * _PLANAR_VELOCITY_GAINS
         else:
+            out[:, 2] = 0.12 * qv[:, v]
             omega = physics.field("cvel")[:, root]  # world angular velocity first
             out[:, 1] = -2.0 * omega[:, 1] / 50.0
             out[:, 3] = 0.08 * qv[:, v + 2]
@@ -186,9 +194,14 @@ class TrackTask:
         """Write the motor state into out (N, motor state): per motor [angle + correction,
         speed / servo speed, (contact flag)]."""
         b = self.bound
-        out[:, self._angle_cols] = physics.field("qpos")[:, b.qpos_adr] + b.angle_correction
-        out[:, self._speed_cols] = physics.field("qvel")[:, b.dof_adr] * self._inv_speeds
-        out[:, self._contact_cols] = self.touched(physics, self._contact_sensors)
+        out[:, self._motor_order] = np.concatenate(
+            (
+                physics.field("qpos")[:, b.qpos_adr] + b.angle_correction,
+                physics.field("qvel")[:, b.dof_adr] * self._inv_speeds,
+                self.touched(physics, self._contact_sensors),
+            ),
+            axis=1,
+        )
 
     # ------------------------------------------------------------------ episode logic
     def shaping(self, x: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -236,11 +249,13 @@ class TrackTask:
         shaping = self.potential(physics, x, obs)
         reward = shaping - rows.prev_shaping
         rows.prev_shaping[:] = shaping
-        reward -= self.body.torque_cost_per_unit * np.minimum(np.abs(actions), 1.0).sum(axis=1)
+        reward -= self.body.torque_cost_per_unit * torque_use(actions)
         if len(self._critical_sensors):
-            rows.critical_contact[:] = self.touched(physics, self._critical_sensors).any(axis=1)
+            touched = self.touched(physics, self._critical_sensors)
+            np.logical_or.reduce(touched, axis=1, out=rows.critical_contact)
         fail = rows.critical_contact | (x < 0.0)
-        return obs, np.where(fail, FAIL_REWARD, reward), fail | (x > self.end_x)
+        reward[fail] = FAIL_REWARD
+        return obs, reward, fail | (x > self.end_x)
 
     def step(self, physics, actions: np.ndarray, rows: EpisodeRows):
         """After physics: (obs (N, obs) float32, reward (N,), terminated (N,), unstable (N,)).
