@@ -4,6 +4,7 @@ directory where another process still works."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from pathlib import Path
@@ -13,6 +14,7 @@ import pytest
 from acl3d.campaign import CampaignDir, CampaignSpec, load_spec, run_campaign
 from acl3d.campaign.attempt import run_attempt
 from acl3d.campaign.lock import LockBusy
+from acl3d.campaign.spec import check_runs
 from acl3d.cli import main
 
 TINY = {"n_envs": 1, "vec_env": "dummy", "nb_test_episodes": 4, "steps": 512, "verbose": 0}
@@ -149,3 +151,16 @@ def test_attempt_does_not_start_beside_a_live_attempt_of_the_same_run(tmp_path):
     threading.Timer(0.5, holder.close).start()
     assert run_attempt(str(run), {"steps": 512}, 1, wait_s=30) == {"ok": True, "steps": 512}
     assert "already finished" in (run / "campaign.log").read_text()
+
+
+def test_bounds_of_this_machine_are_left_to_the_cluster_nodes():
+    """A campaign submitted to a cluster may ask for more threads than this machine has (or a
+    GPU it lacks): the nodes check those; the machine-independent bounds are checked here."""
+    more = (os.cpu_count() or 1) + 1
+    spec = load_spec("quick").scaled(seeds=1, sets={**TINY, "torch_threads": more})
+    with pytest.raises(ValueError, match=f"torch_threads={more}"):
+        check_runs(spec.expand())
+    check_runs(spec.expand(), on_this_machine=False)
+    too_many = load_spec("quick").scaled(seeds=1, sets={**TINY, "n_envs": 5000})
+    with pytest.raises(ValueError, match="n_envs=5000"):
+        check_runs(too_many.expand(), on_this_machine=False)

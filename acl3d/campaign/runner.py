@@ -115,7 +115,7 @@ def run_campaign(
         raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
     check_executor(executor, max_parallel, address)
     runs = spec.expand()
-    check_runs(runs)
+    check_runs(runs, on_this_machine=address is None)  # a cluster's nodes check their own bounds
     cpus = {cpus_of(r.options) for r in runs}
     if len(cpus) != 1:
         raise ValueError(f"every run of a campaign must use the same torch_threads, got {cpus}")

@@ -172,15 +172,16 @@ class CampaignSpec:
 
 
 # ---------------------------------------------------------------------- option checks
-def check_runs(runs: list[RunSpec]) -> None:
+def check_runs(runs: list[RunSpec], on_this_machine: bool = True) -> None:
     """Every run's options as `train` will check them (names, bounds, combinations), so that a
-    bad value is refused before the campaign writes anything or starts any run."""
+    bad value is refused before the campaign writes anything or starts any run; without the
+    bounds relative to this machine (cores, devices) when the runs train on other machines."""
     from acl3d.training.config import student_params, validate
 
     for run in runs:
         try:
             config = TrainConfig.from_dict({**run.options, "out": run.name})
-            validate(config)
+            validate(config, on_this_machine=on_this_machine)
             student_params(config)
         except ValueError as exc:
             raise ValueError(f"run {run.name}: {exc}") from None

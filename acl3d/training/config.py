@@ -181,8 +181,12 @@ _TEXTS = ("env", "body", "teacher", "student", "preset", "device")
 _MAPPINGS = ("bounds", "teacher_params", "student_params", "env_kwargs")
 
 
-def validate(config: TrainConfig) -> None:
-    """Cheap checks of names, numbers and flags (everything that needs no environment)."""
+def validate(config: TrainConfig, *, on_this_machine: bool = True) -> None:
+    """Cheap checks of names, numbers and flags (everything that needs no environment).
+
+    `on_this_machine=False` (a campaign submitted to a cluster) leaves out the bounds relative to
+    this machine (its CPU cores, its devices): the node that trains the run checks those.
+    """
     from acl3d.teachers import teacher_class
     from acl3d.training import students
     from acl3d.training.workers import check_vec_env
@@ -199,7 +203,7 @@ def validate(config: TrainConfig) -> None:
         value = getattr(config, name)
         if value is not None or name in _REQUIRED_COUNTS:
             check.count(name, value, minimum=0 if name in _MAY_BE_ZERO else 1)
-    _check_machine_bounds(config)
+    _check_machine_bounds(config, on_this_machine)
     for name in _FLAGS:
         check.flag(name, getattr(config, name))
     check.integer("verbose", config.verbose, 0, 2)
@@ -229,17 +233,20 @@ def cpu_cores() -> int:
     return os.cpu_count() or 1
 
 
-def _check_machine_bounds(config: TrainConfig) -> None:
-    """Upper bounds on counts that cost memory, processes or threads (the lower ones are above)."""
+def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> None:
+    """Upper bounds on counts that cost memory, processes or threads (the lower ones are above);
+    those relative to this machine's cores and devices only `on_this_machine`."""
     from acl3d.envs.batched import MAX_ENVS
 
-    cores = cpu_cores()
     check.integer("n_envs", config.n_envs, 1, MAX_ENVS)
     if config.eval_envs is not None:
         check.integer("eval_envs", config.eval_envs, 1, MAX_ENVS)
     check.integer("nb_test_episodes", config.nb_test_episodes, 1, MAX_TEST_EPISODES)
-    check.integer("torch_threads", config.torch_threads, 1, cores)
     check.integer("seed", config.seed, 0, MAX_SEED)
+    if not on_this_machine:
+        return
+    cores = cpu_cores()
+    check.integer("torch_threads", config.torch_threads, 1, cores)
     most = max(MIN_WORKER_PROCESSES, 4 * cores)
     for name, n_envs in (("n_envs", config.n_envs), ("eval_envs", config.effective_eval_envs)):
         workers = worker_processes(config, n_envs)
