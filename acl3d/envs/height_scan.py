@@ -5,8 +5,8 @@ points laid out on a forward x lateral grid that turns with the body's heading (
 grid stays level when the body pitches or rolls), each reported relative to the root's height.
 Heights are interpolated bilinearly from the heightfield array itself (no ray casts): the cost
 is a few array operations for all points of all envs, whatever the terrain. Points off the field
-read its nearest edge. On the tracks and Parkour's ground the profile is the same across the
-track, so the scan sees it at every lateral offset.
+read its nearest edge. On the tracks the profile is the same across the track, so the scan sees
+it at every lateral offset.
 """
 
 from __future__ import annotations
@@ -43,9 +43,10 @@ class HeightScan:
         y_min = -TRACK_HALF_WIDTH if profile else -g.half_width
         dx, dy = np.meshgrid(np.asarray(forward, float), np.asarray(lateral, float))
         self._inv_cell = 1.0 / float(g.cell)
-        # offsets in grid cells, (row, column) = (y, x), of the forward and left axes per point
-        self._along = np.stack((dy.ravel(), dx.ravel())) * self._inv_cell
-        self._across = np.stack((dx.ravel(), -dy.ravel())) * self._inv_cell
+        # a point's offset in grid cells, (row, column) = (y, x), turned by the heading yaw:
+        # cos(yaw) * (dy, dx) + sin(yaw) * (dx, -dy)
+        self._cos_part = np.stack((dy.ravel(), dx.ravel())) * self._inv_cell
+        self._sin_part = np.stack((dx.ravel(), -dy.ravel())) * self._inv_cell
         self._min = (y_min, g.x_min)
         self.nb_rays = dx.size
         self._profile_version, self._profile_rows = -1, np.zeros((2, 2))
@@ -67,7 +68,7 @@ class HeightScan:
         norm = max(math.sqrt(a * a + b * b), MIN_NORM)  # the same arithmetic as `read_batch`
         x, y, z = float(origin[0]), float(origin[1]), float(origin[2])
         shift = np.array(((y - self._min[0]) * self._inv_cell, (x - self._min[1]) * self._inv_cell))
-        coords = (a / norm) * self._along + (b / norm) * self._across + shift[:, None]
+        coords = (a / norm) * self._cos_part + (b / norm) * self._sin_part + shift[:, None]
         return self._sample(self.heights(), coords) - z
 
     def read_batch(
@@ -91,8 +92,8 @@ class HeightScan:
             axis=1,
         )
         coords = (
-            (a / norm)[:, None, None] * self._along
-            + (b / norm)[:, None, None] * self._across
+            (a / norm)[:, None, None] * self._cos_part
+            + (b / norm)[:, None, None] * self._sin_part
             + shift[:, :, None]
         )
         out = np.empty((len(origins), self.nb_rays))
