@@ -7,7 +7,7 @@ from acl3d.cli import main
 
 
 def test_builtin_specs_expand():
-    assert set(builtin_names()) >= {"quick", "stump-ppo", "tma-parkour", "tma-skills"}
+    assert set(builtin_names()) >= {"quick", "stump-ppo", "terrain3d", "tma-parkour", "tma-skills"}
     quick = load_spec("quick").expand()
     assert [r.name for r in quick] == ["random__s0", "random__s1", "alp-gmm__s0", "alp-gmm__s1"]
     assert quick[2].options["teacher"] == "alp-gmm" and quick[2].options["seed"] == 0
