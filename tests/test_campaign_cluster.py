@@ -14,17 +14,9 @@ from pathlib import Path
 from acl3d.campaign import load_spec, run_campaign
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from ray_cluster_check import cluster, placement  # noqa: E402
+from ray_cluster_check import SETS, cluster, placement  # noqa: E402
 
-TINY = {
-    "steps": 256,
-    "n_envs": 1,
-    "vec_env": "dummy",
-    "nb_test_episodes": 4,
-    "env_kwargs": {"max_episode_steps": 40},
-    "student_params": {"n_steps": 256, "batch_size": 64, "n_epochs": 1},
-    "verbose": 0,
-}
+TINY = {**SETS, "steps": 256}  # one 256-step rollout per run
 
 
 def test_campaign_runs_on_both_nodes_of_a_ray_cluster(tmp_path):

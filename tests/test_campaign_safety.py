@@ -164,3 +164,13 @@ def test_bounds_of_this_machine_are_left_to_the_cluster_nodes():
     too_many = load_spec("quick").scaled(seeds=1, sets={**TINY, "n_envs": 5000})
     with pytest.raises(ValueError, match="n_envs=5000"):
         check_runs(too_many.expand(), on_this_machine=False)
+
+
+def test_out_at_or_under_a_file_is_one_line(tmp_path, capsys):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for out in (a_file, a_file / "camp"):
+        assert main(["campaign", "run", "quick", "--out", str(out), "--executor", "local"]) == 2
+        err = capsys.readouterr().err
+        assert "cannot be created" in err and len(err.strip().splitlines()) == 1
+    assert a_file.read_text() == "x"

@@ -30,7 +30,10 @@ class LockBusy(ValueError):
 def exclusive(path, what: str) -> Iterator[None]:
     """Hold the lock file `path` for the block (its directory must exist); `LockBusy` naming
     `what` and the holder (pid, host: the file says) if another process holds it."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:  # a read-only filesystem, a lock file that is a folder, ...
+        raise ValueError(f"{what} cannot be locked: {exc.strerror} ({path})") from None
     try:
         if not try_lock(fd):
             raise LockBusy(f"{what} is in use by {_holder(fd)}")

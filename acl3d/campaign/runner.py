@@ -86,7 +86,10 @@ class CampaignDir:
     def lock(self):
         """Hold the directory for this campaign process (one holder; released when it exits,
         however it exits). Creates the directory."""
-        self.path.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # at or under a file, read-only, ...
+            raise ValueError(f"out={str(self.path)!r} cannot be created: {exc.strerror}") from None
         with exclusive(self.path / ".lock", f"campaign directory {str(self.path)!r}"):
             yield
 
