@@ -17,7 +17,7 @@ from pathlib import Path
 
 from acl3d.analysis import figures
 from acl3d.analysis.compare import Comparison
-from acl3d.analysis.runs import METRICS, load_runs, write_tidy_csv
+from acl3d.analysis.runs import METRICS, Run, load_runs, write_tidy_csv
 from acl3d.analysis.stats import DEFAULT_REPS, Interval
 
 _MAX_MARKDOWN_ROWS = 60
@@ -31,7 +31,7 @@ def _cell(value) -> str:
     return str(value)
 
 
-def _write_csv(rows: list[dict], path: Path) -> None:
+def write_csv(rows: list[dict], path: Path) -> None:
     columns: list[str] = []
     for row in rows:
         columns += [k for k in row if k not in columns]
@@ -55,11 +55,18 @@ def _write_csv(rows: list[dict], path: Path) -> None:
             writer.writerow(out)
 
 
-def _markdown_table(rows: list[dict], columns: list[str]) -> str:
+def markdown_table(rows: list[dict], columns: list[str]) -> str:
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     for row in rows:
         lines.append("| " + " | ".join(_cell(row.get(c, "")) for c in columns) + " |")
     return "\n".join(lines)
+
+
+def check_options(metric: str, reps: int) -> None:
+    if metric not in METRICS:
+        raise ValueError(f"metric {metric!r} unknown; valid: {', '.join(METRICS)}")
+    if isinstance(reps, bool) or not isinstance(reps, int) or reps < 100:
+        raise ValueError(f"reps must be an integer >= 100, got {reps!r}")
 
 
 def analyze(
@@ -71,16 +78,25 @@ def analyze(
     seed: int = 0,
 ) -> Path:
     """Write the report of the runs under `root` into `out` (default ROOT/report)."""
-    if metric not in METRICS:
-        raise ValueError(f"metric {metric!r} unknown; valid: {', '.join(METRICS)}")
-    if isinstance(reps, bool) or not isinstance(reps, int) or reps < 100:
-        raise ValueError(f"reps must be an integer >= 100, got {reps!r}")
-    runs = load_runs(root)
+    check_options(metric, reps)
+    out = Path(out) if out is not None else Path(root) / "report"
+    return write_report(load_runs(root), out, baseline, metric, reps, seed)
+
+
+def write_report(
+    runs: list[Run],
+    out: Path,
+    baseline: str = "random",
+    metric: str = "mastered_pct",
+    reps: int = DEFAULT_REPS,
+    seed: int = 0,
+    extra: str = "",
+) -> Path:
+    """The report of `runs` into `out`; `extra` (Markdown) is appended to report.md."""
     comp = Comparison(runs, baseline, metric)
     notes = comp.data_warnings()
     for note in notes:  # before the bootstrap, which may take a while
         print(f"[acl3d] warning: {note}", file=sys.stderr, flush=True)
-    out = Path(out) if out is not None else Path(root) / "report"
     out.mkdir(parents=True, exist_ok=True)
 
     write_tidy_csv(runs, out / "evaluations.csv")
@@ -90,7 +106,7 @@ def analyze(
     curve_rows = comp.curves(reps, seed)
     for rows, name in ((final, "final_scores"), (aggregates, "aggregates"),
                        (over_steps, "welch_over_steps"), (curve_rows, "curves")):  # fmt: skip
-        _write_csv(rows, out / f"{name}.csv")
+        write_csv(rows, out / f"{name}.csv")
     pngs = [
         figures.curves(comp, curve_rows, out / f"curves_{metric}.png"),
         figures.intervals(comp, aggregates, out / "aggregates.png"),
@@ -101,7 +117,7 @@ def analyze(
     if notes:
         title, _, rest = report.partition("\n")
         report = "\n".join([title, "", *(f"> **Warning**: {n}" for n in notes), rest])
-    (out / "report.md").write_text(report)
+    (out / "report.md").write_text(report + extra)
     return out
 
 
@@ -109,11 +125,11 @@ def _steps_section(rows: list[dict], columns: list[str]) -> str:
     if not rows:
         return "(no teacher shares a task with the baseline)"
     if len(rows) <= _MAX_MARKDOWN_ROWS:
-        return _markdown_table(rows, columns)
+        return markdown_table(rows, columns)
     shown = [r for r in rows if r["significant"]][:_MAX_MARKDOWN_ROWS]
     return (
         f"{len(rows)} tests; the {len(shown)} first significant ones below, all of them in "
-        f"`welch_over_steps.csv`.\n\n" + _markdown_table(shown, columns)
+        f"`welch_over_steps.csv`.\n\n" + markdown_table(shown, columns)
     )
 
 
@@ -136,11 +152,11 @@ def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
         f"probability that a run of the teacher beats a run of {comp.baseline} on the same task "
         f"(rliable's definitions, {reps} bootstrap replicates).",
         "",
-        _markdown_table(aggregates, agg_cols),
+        markdown_table(aggregates, agg_cols),
         "",
         f"## Per task, with Welch's t-test against {comp.baseline} (p < 0.05)",
         "",
-        _markdown_table(final, fin_cols),
+        markdown_table(final, fin_cols),
         "",
         "## Welch's t-test at every evaluation",
         "",

@@ -1,4 +1,5 @@
-"""`acl3d analyze DIR`: statistics, figures and a Markdown report of a campaign's runs."""
+"""`acl3d analyze DIR [--reference PROTOCOL]`: statistics, figures and a Markdown report of a
+campaign's runs, alone or beside a reference protocol's committed runs."""
 
 from __future__ import annotations
 
@@ -17,9 +18,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--reps", type=int, default=20_000, help="bootstrap replicates (default 20000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
+    p.add_argument(
+        "--reference",
+        metavar="PROTOCOL",
+        help="compare with a reference protocol's runs: a shipped one (stump-v1, "
+        "parkour-walker-v1) or a folder of runs; runs of another protocol are refused",
+    )
 
 
 def run(args) -> int:
+    if args.reference is not None:
+        from acl3d.analysis.reference import analyze_against
+
+        out = analyze_against(args.dir, args.reference, args.out, args.metric, args.reps, args.seed)
+        print(f"report written to {out / 'report.md'}")
+        return 0
     from acl3d.analysis import analyze
 
     out = analyze(args.dir, args.out, args.baseline, args.metric, args.reps, args.seed)

@@ -1,4 +1,5 @@
-"""`acl3d campaign list | show SPEC | run SPEC --out DIR | status DIR`: benchmark campaigns."""
+"""`acl3d campaign list | show SPEC | run SPEC --out DIR | status DIR | export DIR --protocol P`:
+benchmark campaigns."""
 
 from __future__ import annotations
 
@@ -30,6 +31,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     status = sub.add_parser("status", help="progress of a campaign directory")
     status.add_argument("dir", help="campaign directory")
+    export = sub.add_parser(
+        "export", help="write a campaign's finished runs as compact reference results"
+    )
+    export.add_argument("dir", help="campaign directory")
+    export.add_argument("--protocol", required=True, help="protocol name, e.g. stump-v1")
+    export.add_argument(
+        "--out", help="destination (default: acl3d/results/PROTOCOL of this acl3d, replaced)"
+    )
 
 
 def _scaling_options(p: argparse.ArgumentParser) -> None:
@@ -51,7 +60,8 @@ def _spec(args):
 
 
 def run(args) -> int:
-    return {"list": _list, "show": _show, "run": _run, "status": _status}[args.action](args)
+    actions = {"list": _list, "show": _show, "run": _run, "status": _status, "export": _export}
+    return actions[args.action](args)
 
 
 def _list(args) -> int:
@@ -127,4 +137,16 @@ def _status(args) -> int:
     counts = summarize(states)
     title = f"campaign {doc['spec']['name']}: " + ", ".join(f"{v} {k}" for k, v in counts.items())
     Console().print(status_table(states, title=title))
+    return 0
+
+
+def _export(args) -> int:
+    from pathlib import Path
+
+    from acl3d import results
+    from acl3d.analysis.export import export_campaign
+
+    out = Path(args.out) if args.out else Path(results.__file__).parent / args.protocol
+    names = export_campaign(args.dir, out, args.protocol)
+    print(f"{len(names)} finished runs exported to {out}")
     return 0

@@ -1,0 +1,152 @@
+"""A finished campaign's runs in the compact form committed as reference results.
+
+Per run (see `acl3d.results`): the config without local paths plus the task space, evaluations
+overall and per test task, the test set once, and the training episodes summarised in
+`SUMMARY_WINDOWS` windows of the budget; no models, checkpoints or TensorBoard logs (a 1M-step
+run's export is ~20 kB instead of megabytes). `protocol.yaml` records the campaign spec, the
+hardware and the software versions of the runs.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from acl3d.analysis.runs import load_runs
+
+SUMMARY_WINDOWS = 20
+EVAL_TASK_COLUMNS = ("step", "task_index", "return", "length", "success")
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[dict]]:
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), list(reader)
+
+
+def _write_rows(path: Path, columns, rows) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        writer.writerows(rows)
+
+
+def task_columns(columns: list[str], known: tuple[str, ...]) -> list[str]:
+    """The task-vector columns of a run CSV (every column that is not a known field)."""
+    return [c for c in columns if c not in known]
+
+
+def _config(run: Path) -> dict:
+    doc = yaml.safe_load((run / "config.yaml").read_text()) or {}
+    doc.get("config", {}).pop("out", None)
+    doc.get("environment", {}).pop("command", None)
+    teacher_file = run / "teacher.json"
+    if teacher_file.exists():
+        saved = json.loads(teacher_file.read_text())
+        doc["task_space"] = saved.get("bounds")
+    return doc
+
+
+def _eval_tasks(run: Path, dest: Path) -> None:
+    columns, rows = _read_csv(run / "evals_tasks.csv")
+    tasks = task_columns(columns, EVAL_TASK_COLUMNS)
+    _write_rows(
+        dest / "evals_tasks.csv",
+        EVAL_TASK_COLUMNS,
+        ([r[c] for c in EVAL_TASK_COLUMNS] for r in rows),
+    )
+    first = {}
+    for r in rows:
+        first.setdefault(int(r["task_index"]), [r[c] for c in tasks])
+    _write_rows(
+        dest / "test_set.csv", ["task_index", *tasks], ([i, *v] for i, v in sorted(first.items()))
+    )
+
+
+def _episodes_summary(run: Path, steps: int, dest: Path) -> None:
+    columns, rows = _read_csv(run / "episodes.csv")
+    tasks = task_columns(columns, ("step", "worker", "return", "length", "success", "truncated"))
+    header = ["step_end", "episodes", "mean_return", "std_return", "mean_length", "success_rate"]
+    header += [f"mean_{c}" for c in tasks]
+    edges = np.linspace(0, steps, SUMMARY_WINDOWS + 1)
+    if rows:
+        step = np.array([float(r["step"]) for r in rows])
+        values = {k: np.array([float(r[k]) for r in rows]) for k in ("return", "length", "success")}
+        task_values = np.array([[float(r[c]) for c in tasks] for r in rows]).reshape(len(rows), -1)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        inside = (step > lo) & (step <= hi) if rows else np.zeros(0, dtype=bool)
+        n = int(inside.sum())
+        if n == 0:
+            out.append([int(hi), 0, *[""] * (len(header) - 2)])
+            continue
+        r = values["return"][inside]
+        out.append(
+            [int(hi), n, f"{r.mean():.6g}", f"{r.std():.6g}", f"{values['length'][inside].mean():.6g}",
+             f"{values['success'][inside].mean():.4g}",
+             *(f"{v:.6g}" for v in task_values[inside].mean(axis=0))]
+        )  # fmt: skip
+    _write_rows(dest / "episodes_summary.csv", header, out)
+
+
+def _cpu_model() -> str:
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return "unknown"
+    return next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), "?")
+
+
+def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
+    """Write the finished runs under `campaign_dir` into `out` in the committed form; returns
+    the exported run names. Unfinished runs are left out (named in protocol.yaml)."""
+    if not isinstance(protocol, str) or not protocol or os.sep in protocol:
+        raise ValueError(f"protocol must be a name like 'stump-v1', got {protocol!r}")
+    root, out = Path(campaign_dir), Path(out)
+    runs = load_runs(root)
+    finished = [r for r in runs if r.status == "finished"]
+    if not finished:
+        raise ValueError(f"no finished run under {str(root)!r} ({len(runs)} unfinished)")
+    names = [r.path.name for r in finished]
+    if len(set(names)) != len(names):
+        raise ValueError(f"run folder names repeat under {str(root)!r}: they name the exports")
+    if out.exists():
+        shutil.rmtree(out)  # an export replaces the previous one of that protocol as a whole
+    out.mkdir(parents=True)
+    environments = []
+    for run in finished:
+        dest = out / run.path.name
+        dest.mkdir()
+        config = _config(run.path)
+        environments.append(config.get("environment", {}))
+        (dest / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+        shutil.copyfile(run.path / "evals.csv", dest / "evals.csv")
+        shutil.copyfile(run.path / "status.json", dest / "status.json")
+        _eval_tasks(run.path, dest)
+        steps = int(config.get("resolved", {}).get("steps") or config["config"]["steps"])
+        _episodes_summary(run.path, steps, dest)
+    manifest = next(root.rglob("campaign.yaml"), None)
+    spec = (yaml.safe_load(manifest.read_text()) or {}).get("spec") if manifest else None
+    doc = {
+        "protocol": protocol,
+        "exported": datetime.date.today().isoformat(),
+        "runs": names,
+        "left_out": sorted(r.name for r in runs if r.status != "finished"),
+        "hardware": {
+            "platform": sorted({e.get("platform", "?") for e in environments}),
+            "python": sorted({e.get("python", "?") for e in environments}),
+            "exported_on": {"cpus": os.cpu_count(), "cpu_model": _cpu_model()},
+        },
+        "packages": environments[0].get("packages", {}),
+        "git_commits": sorted({str(e.get("git_commit")) for e in environments}),
+        "spec": spec,
+    }
+    (out / "protocol.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    return names

@@ -1,0 +1,163 @@
+"""Reference results: export of real runs, `analyze --reference` with its protocol check, the
+leaderboard. tests/data/reference-mini{,-new} are the export of a tiny real campaign
+(`scripts/make_reference_fixture.py`): Random, ALP-GMM, RIAC x 3 seeds, and Covar-GMM x 3 seeds
+as the "new" teacher."""
+
+from __future__ import annotations
+
+import csv
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from acl3d import results
+from acl3d.analysis.export import export_campaign
+from acl3d.analysis.leaderboard import LEADERBOARD_END, LEADERBOARD_START, write_leaderboard
+from acl3d.analysis.reference import analyze_against
+from acl3d.analysis.runs import load_runs
+from acl3d.cli import main
+
+DATA = Path(__file__).parent / "data"
+REFERENCE, NEW = DATA / "reference-mini", DATA / "reference-mini-new"
+
+
+def _finals(folder: Path, metric: str) -> dict[str, np.ndarray]:
+    out: dict[str, list[float]] = {}
+    for run in sorted(p for p in folder.iterdir() if (p / "evals.csv").exists()):
+        with (run / "evals.csv").open() as f:
+            last = list(csv.DictReader(f))[-1]
+        teacher = yaml.safe_load((run / "config.yaml").read_text())["config"]["teacher"]
+        out.setdefault(teacher, []).append(float(last[metric]))
+    return {t: np.array(v) for t, v in out.items()}
+
+
+def test_new_teacher_beside_the_reference(tmp_path, capsys):
+    out = tmp_path / "report"
+    code = main(["analyze", str(NEW), "--reference", str(REFERENCE), "--metric", "mean_return",
+                 "--reps", "500", "--out", str(out)])  # fmt: skip
+    assert code == 0 and "report written" in capsys.readouterr().out
+    with (out / "against_each_reference.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    finals = {**_finals(REFERENCE, "mean_return"), **_finals(NEW, "mean_return")}
+    assert {r["reference"] for r in rows} == {"random", "alp-gmm", "riac"}
+    for row in rows:
+        x, y = finals["covar-gmm"], finals[row["reference"]]
+        assert float(row["mean"]) == pytest.approx(x.mean())
+        assert float(row["reference_mean"]) == pytest.approx(y.mean())
+        wins = ((x[:, None] > y[None, :]) + 0.5 * (x[:, None] == y[None, :])).mean()
+        assert float(row["P(improvement)"]) == pytest.approx(wins)
+    report = (out / "report.md").read_text()
+    assert "## Against each teacher of the reference 'reference-mini'" in report
+    for figure in ("performance_profile.png", "aggregates.png", "curves_mean_return.png"):
+        assert (out / figure).stat().st_size > 0
+    # the combined tables hold the reference's teachers and the new one
+    with (out / "aggregates.csv").open() as f:
+        assert {r["teacher"] for r in csv.DictReader(f)} == {
+            "random",
+            "alp-gmm",
+            "riac",
+            "covar-gmm",
+        }
+
+
+@pytest.mark.parametrize(
+    ("edit", "field"),
+    [
+        (lambda run: _set_config(run, ("config", "body"), "spider"), "body"),
+        (lambda run: _set_config(run, ("resolved", "steps"), 4096), "budget (steps)"),
+        (lambda run: _set_config(run, ("student_hyperparameters", "n_epochs"), 3), "student hyper"),
+        (lambda run: _shift_test_set(run), "test set"),
+    ],
+)
+def test_runs_of_another_protocol_are_refused_naming_the_field(tmp_path, capsys, edit, field):
+    new = tmp_path / "new"
+    shutil.copytree(NEW, new)
+    edit(sorted(new.glob("covar-gmm__s*"))[1])
+    with pytest.raises(
+        ValueError, match=f"does not follow the reference protocol.*{re.escape(field)}"
+    ):
+        analyze_against(new, str(REFERENCE), tmp_path / "report", "mean_return", 200)
+    assert not (tmp_path / "report").exists()
+    code = main(["analyze", str(new), "--reference", str(REFERENCE), "--reps", "200"])
+    assert code == 2 and field in capsys.readouterr().err
+
+
+def _set_config(run: Path, keys: tuple[str, str], value) -> None:
+    doc = yaml.safe_load((run / "config.yaml").read_text())
+    doc[keys[0]][keys[1]] = value
+    (run / "config.yaml").write_text(yaml.safe_dump(doc))
+
+
+def _shift_test_set(run: Path) -> None:
+    text = (run / "test_set.csv").read_text().splitlines()
+    index, height, spacing = text[2].split(",")
+    text[2] = f"{index},{float(height) + 0.5},{spacing}"
+    (run / "test_set.csv").write_text("\n".join(text) + "\n")
+
+
+def test_unknown_reference_names_the_shipped_protocols(tmp_path):
+    with pytest.raises(ValueError, match="not a shipped protocol"):
+        analyze_against(NEW, "stump-v0", tmp_path / "r", "mean_return", 200)
+    assert set(results.protocols()) <= {"stump-v1", "parkour-walker-v1"}
+
+
+def test_export_of_a_real_run(tmp_path):
+    from acl3d.training import train
+
+    run_dir = tmp_path / "camp" / "runs" / "random__s0"
+    train(teacher="random", student="ppo", preset="fast", steps=256, n_envs=1, vec_env="dummy",
+          nb_test_episodes=4, eval_every=128, env_kwargs={"max_episode_steps": 30},
+          student_params={"n_steps": 128, "batch_size": 64, "n_epochs": 1}, progress_bar=False,
+          verbose=0, out=str(run_dir))  # fmt: skip
+    names = export_campaign(tmp_path / "camp", tmp_path / "exported", "mini")
+    assert names == ["random__s0"]
+    got = tmp_path / "exported" / "random__s0"
+    assert sorted(p.name for p in got.iterdir()) == [
+        "config.yaml", "episodes_summary.csv", "evals.csv", "evals_tasks.csv", "status.json",
+        "test_set.csv",
+    ]  # fmt: skip
+    config = yaml.safe_load((got / "config.yaml").read_text())
+    assert "out" not in config["config"] and "command" not in config["environment"]
+    assert config["task_space"] == {"stump_height": [0.0, 3.0], "obstacle_spacing": [0.0, 6.0]}
+    with (run_dir / "episodes.csv").open() as f:
+        episodes = list(csv.DictReader(f))
+    with (got / "episodes_summary.csv").open() as f:
+        windows = list(csv.DictReader(f))
+    assert sum(int(w["episodes"]) for w in windows) == len(episodes)
+    returns = [float(e["return"]) for e in episodes]
+    first = [w for w in windows if int(w["episodes"])][0]
+    inside = [float(e["return"]) for e in episodes if float(e["step"]) <= int(first["step_end"])]
+    assert float(first["mean_return"]) == pytest.approx(np.mean(inside), rel=1e-5)
+    assert len(returns) > 0
+    # the exported run is read like the original one
+    (original,), (exported,) = load_runs(run_dir), load_runs(got)
+    np.testing.assert_array_equal(original.metrics["mean_return"], exported.metrics["mean_return"])
+
+
+def test_leaderboard_from_committed_form(tmp_path):
+    root = tmp_path / "results"
+    shutil.copytree(REFERENCE, root / "reference-mini")
+    page = tmp_path / "docs" / "results.md"
+    page.parent.mkdir()
+    page.write_text(f"# Results\n\n{LEADERBOARD_START}\nold\n{LEADERBOARD_END}\n\nkept\n")
+    assert write_leaderboard(root, page, tmp_path / "docs" / "figures", reps=200) == [
+        "reference-mini"
+    ]
+    text = page.read_text()
+    assert "old" not in text and text.endswith("kept\n") and "### reference-mini" in text
+    finals = _finals(REFERENCE, "mean_return")
+    rows = {
+        line.split(" | ")[0].strip("| "): line
+        for line in text.splitlines()
+        if "±" in line and not line.startswith("| teacher")
+    }
+    assert list(rows) == ["random", "alp-gmm", "riac"]  # Random first
+    for teacher, x in finals.items():
+        assert f"{x.mean():.1f} ± {x.std(ddof=1):.1f}" in rows[teacher]
+    assert "budget 1,024 steps per run · 3 seeds" in text
+    assert (tmp_path / "docs" / "figures" / "reference-mini_mean_return.png").exists()
+    assert "](figures/reference-mini_mean_return.png)" in text
