@@ -60,6 +60,7 @@ def error(call):
 out["errors"]["train"] = error(lambda: __import__("acl3d.training", fromlist=["x"]).train)
 out["errors"]["dmc"] = error(lambda: gym.make("acl3d/StumpTracks-v0", body="dmc:ant"))
 out["errors"]["sb3"] = error(lambda: __import__("acl3d.vec.batched_sb3"))
+out["errors"]["sklearn"] = error(lambda: teachers.make("alp-gmm", space, gmm_backend="sklearn"))
 out["cli_train"] = main(["train", "--steps", "1000", "--out", "unused-run"])
 out["cli_campaign"] = main(["campaign", "run", "quick", "--out", "unused-campaign"])
 print("RESULT " + json.dumps(out))
@@ -110,6 +111,8 @@ def test_missing_extras_are_named_with_their_install_command(without_extras):
     assert 'pip install "acl3d[train]"' in out["errors"]["train"]
     assert 'pip install "acl3d[dmc]"' in out["errors"]["dmc"]
     assert 'pip install "acl3d[train]"' in out["errors"]["sb3"]
+    assert 'gmm_backend="sklearn"' in out["errors"]["sklearn"]
+    assert 'pip install "acl3d[sklearn]"' in out["errors"]["sklearn"]
     assert out["cli_train"] == out["cli_campaign"] == 1
     assert re.search(r"acl3d campaign: error: .*pip install \"acl3d\[campaign\]\"", stderr)
     assert re.search(r"acl3d train: error: .*pip install \"acl3d\[train\]\"", stderr)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
+from acl3d.extras import optional_dependency
 from acl3d.teachers.base import Teacher
 
 _FITNESS = ("aic", "bic", "aicc")
@@ -172,14 +173,8 @@ def gmm_fitness(name: str, log_lik: float, k: int, n: int, d: int) -> float:
 
 def _sklearn_mixture_class():
     """sklearn's GaussianMixture, imported only when the sklearn backend is chosen."""
-    try:
+    with optional_dependency('gmm_backend="sklearn"'):
         from sklearn.mixture import GaussianMixture as SklearnMixture
-    except ModuleNotFoundError as exc:
-        raise ModuleNotFoundError(
-            'gmm_backend="sklearn" needs scikit-learn, which is not installed: '
-            'pip install "acl3d[sklearn]"',
-            name=exc.name,
-        ) from exc
     return SklearnMixture
 
 
