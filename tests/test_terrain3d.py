@@ -13,7 +13,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d  # noqa: F401  (registers the ids)
 from acl3d.envs.env_state import get_env_state, set_env_state
-from acl3d.envs.height_scan import FORWARD, LATERAL, HeightScan
+from acl3d.envs.height_scan import FORWARD, LATERAL
 from acl3d.envs.terrain3d_task import FAIL_REWARD
 from acl3d.terrain import terrain3d_test_sets
 from acl3d.terrain.terrain3d import HEIGHT_RANGE, Terrain3DGenerator, terrain3d_task_space
@@ -183,13 +183,15 @@ def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
     env.reset(seed=0, options={"task": TASK})
     _teleport(env, x=12.0, y=-0.5)
     g, h = env.arena.grid, env.arena.heights
-    scan = HeightScan(env.arena)
-    origin = env.data.xpos[env.bound.root_id].copy()
+    scan, root = env.task.lidar, env.bound.root_id
+    origin = env.data.xpos[root].copy()
     for yaw in (0.0, 0.7, np.pi / 2):  # turn the body: the grid turns with it
         q = env.bound.root_qpos
         env.data.qpos[q + 3 : q + 7] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         mujoco.mj_forward(env.model, env.data)
-        got = scan.read(env.model, env.data, env.data.xpos[env.bound.root_id])
+        got = scan.read_batch(
+            env.rows.heights, env.data.xpos[root][None], env.data.xmat[root][None]
+        )
         dx, dy = np.meshgrid(FORWARD, LATERAL)
         px = origin[0] + np.cos(yaw) * dx - np.sin(yaw) * dy
         py = origin[1] + np.sin(yaw) * dx + np.cos(yaw) * dy
@@ -202,23 +204,23 @@ def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
             + h[j + 1, i] * (1 - a) * b
             + h[j + 1, i + 1] * a * b
         )
-        np.testing.assert_allclose(got, expected.ravel() - origin[2], atol=1e-9)
+        np.testing.assert_allclose(got[0], expected.ravel() - origin[2], atol=1e-9)
 
 
 def test_height_scan_of_n_envs_is_bit_identical_to_each_alone():
     env = gym.make(ENV_ID).unwrapped
-    scan, heights, origins, headings, alone = env.task.lidar, [], [], [], []
+    scan, root, heights, origins, rotations = env.task.lidar, env.bound.root_id, [], [], []
     for seed in range(3):
         env.reset(seed=seed, options={"task": TASK})
         for _ in range(10 * seed + 5):
             env.step(env.action_space.sample())
-        r = env.data.xmat[env.bound.root_id]
-        heights.append(env.arena.heights.copy())
-        origins.append(env.data.xpos[env.bound.root_id].copy())
-        headings.append([r[0], r[3]])
-        alone.append(scan.read(env.model, env.data, env.data.xpos[env.bound.root_id]))
-    batch = scan.read_batch(np.stack(heights), np.stack(origins), np.array(headings))
-    np.testing.assert_array_equal(batch, np.stack(alone))
+        heights.append(env.rows.heights[0].copy())
+        origins.append(env.data.xpos[root].copy())
+        rotations.append(env.data.xmat[root].copy())
+    batch = scan.read_batch(np.stack(heights), np.stack(origins), np.stack(rotations))
+    for i in range(3):
+        alone = scan.read_batch(heights[i][None], origins[i][None], rotations[i][None])
+        np.testing.assert_array_equal(batch[i], alone[0])
 
 
 def test_height_scan_on_stump_tracks_reads_the_profile_at_every_lateral_offset():
@@ -249,10 +251,19 @@ def test_two_instances_and_a_spawned_process_agree():
     assert rollout() == rollout() == other
 
 
-def test_batched_envs_match_single_envs():
+@pytest.mark.parametrize("observation, one_batch", [("height_scan", True), ("lidar", False)])
+def test_batched_envs_match_single_envs(observation, one_batch):
     n, seed = 2, 5
-    vec = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", threads=2)
-    singles = [gym.make(ENV_ID) for _ in range(n)]
+    vec = gym.make_vec(
+        ENV_ID,
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        threads=2,
+        observation=observation,
+    )
+    # the height scan steps all sub-envs as one MuJoCo batch; ray-cast lidars one by one
+    assert (vec.unwrapped.batch.physics is not None) == one_batch
+    singles = [gym.make(ENV_ID, observation=observation) for _ in range(n)]
     obs, _ = vec.reset(seed=seed, options={"task": TASK})
     for i, env in enumerate(singles):
         np.testing.assert_array_equal(obs[i], env.reset(seed=seed + i, options={"task": TASK})[0])

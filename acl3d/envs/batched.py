@@ -6,7 +6,7 @@ the Stable-Baselines3 vec env (`acl3d.vec.batched_sb3`). Each sub-env is a full 
 and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i plays.
 Resets go through the sub-env's own `reset`.
 
-Tracks: the physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs'
+Tracks and 3D Terrain: the physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs'
 models, on its own C threads), and the task's step (`TrackTask.step`: observation, reward,
 termination, lidars, servo caps) runs once on (N, ...) arrays; each sub-env's running episode is
 its row of the batch's `EpisodeRows` (the sub-env holds a view of it). Between steps the batch
@@ -28,9 +28,7 @@ import numpy as np
 
 from acl3d import validation
 from acl3d.envs import env_id as resolve_env_id
-from acl3d.envs.lidar import ProfileLidar
 from acl3d.envs.physics import BatchPhysics
-from acl3d.envs.track_task import TrackTask
 
 MAX_ENVS = 4096
 
@@ -81,10 +79,10 @@ class BatchedEnvs:
         self.task_space = e.task_space
         self.elapsed = np.zeros(num_envs, dtype=np.int64)
         self.threads = min(threads, num_envs)
-        # tracks with lidars: one array step; Parkour (water, creepers, grasps), height scans
-        # and 3D Terrain: each sub-env's own step code
+        # tracks and 3D Terrain (sensors reading heights rows): one array step; Parkour (water,
+        # creepers, grasps) and ray-cast lidars: each sub-env's own step code
         self.physics = self.rows = None
-        if type(e.task) is TrackTask and isinstance(e.task.lidar, ProfileLidar):
+        if e.task.steps_in_batch:
             self.task = e.task  # every sub-env's task computes the same; one steps them all
             self.physics = BatchPhysics(
                 [env.model for env in self.envs], e.frame_skip, self.threads, e.task.physics_fields
@@ -93,7 +91,6 @@ class BatchedEnvs:
             for i, env in enumerate(self.envs):
                 env.rows = self.rows.row(i)
             self._caps = [env.model.actuator_forcerange for env in self.envs]
-            self._success_return = e.curriculum_profile.success_return
             self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
             threads = 1  # the batch has its own threads
         bounds = np.linspace(0, num_envs, min(threads, num_envs) + 1).astype(int)
@@ -167,7 +164,7 @@ class BatchedEnvs:
             self.physics.step()
             self._unsynced[:] = True
             obs, rewards, terminated, unstable = self.task.step(self.physics, a, self.rows)
-            success = (self.rows.episode_return > self._success_return).tolist()
+            success = self.envs[0].successes(self.rows).tolist()
             infos = [{"success": s} for s in success]
             for i in np.flatnonzero(unstable):
                 infos[i]["unstable"] = True

@@ -128,8 +128,11 @@ class ProfileLidar(Lidar):
         out[:, : self._ncol] = 0.0
         return out
 
-    def read_batch(self, heights: np.ndarray, origins: np.ndarray) -> np.ndarray:
-        """`read` for N envs at once: heights from `batch_heights`, origins (N, 3).
+    def read_batch(
+        self, heights: np.ndarray, origins: np.ndarray, rotations: np.ndarray | None = None
+    ) -> np.ndarray:
+        """`read` for N envs at once: heights from `batch_heights`, origins (N, 3); the roots'
+        orientations (`rotations`, the height scan's) are not used: the rays stay sagittal.
 
         Element by element the same arithmetic as `read` (no reductions that sum), so each row
         is bit-identical to `read` on that env alone, whatever N.

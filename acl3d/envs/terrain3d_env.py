@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
+
 from acl3d import validation
 from acl3d.bodies.base import Body
 from acl3d.envs.profiles import TERRAIN3D
@@ -63,11 +65,9 @@ class Terrain3DEnv(TrackEnv):
         )
         self.observation = observation
 
-    def _info(self, unstable: bool) -> dict:
-        info = {"success": self.task.crossed}
-        if unstable:
-            info["unstable"] = True
-        return info
+    def successes(self, rows) -> np.ndarray:
+        """(N,) success flags: the episodes in `rows` crossed the finish line at the last step."""
+        return rows.crossed.copy()
 
 
 class Terrain3DComposition:

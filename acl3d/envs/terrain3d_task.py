@@ -19,10 +19,15 @@ from __future__ import annotations
 import numpy as np
 
 from acl3d.bodies.base import BoundBody
-from acl3d.envs import env_state
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import Lidar
-from acl3d.envs.track_task import ANGLE_PENALTY, FAIL_REWARD, TrackTask, torque_use
+from acl3d.envs.track_task import (
+    ANGLE_PENALTY,
+    FAIL_REWARD,
+    EpisodeRows,
+    TrackTask,
+    torque_use,
+)
 
 PROGRESS_GAIN = 15.0  # reward per metre along x (the course is ~22 m from spawn to finish)
 HEADING_PENALTY = 5.0  # per radian of yaw away from +x
@@ -44,15 +49,23 @@ def outcome(x, y, critical, end_x: float, half_width: float):
 
 
 class Terrain3DTask(TrackTask):
-    """Per-step observation, reward and termination of one body on the 3D field."""
+    """Observation, reward and termination of N envs of one body on the 3D field.
+
+    Its rows add `crossed`, the flag of the last step (the success of an episode that ended
+    there), which the env reports as `info["success"]`.
+    """
 
     def __init__(self, bound: BoundBody, sensor, half_width: float, end_x: float):
         self.half_width = half_width
-        self.crossed = False
         super().__init__(bound, sensor, end_x)
 
     def extra_obs_size(self) -> int:
         return 1  # y / half width
+
+    def new_rows(self, n: int) -> EpisodeRows:
+        rows = super().new_rows(n)
+        rows.crossed = np.zeros(n, dtype=bool)
+        return rows
 
     def _pose(self, physics, obs) -> tuple:
         """(y, pitch, yaw) of the root, (N,) each; a planar body stays at y = 0 facing +x."""
@@ -69,8 +82,9 @@ class Terrain3DTask(TrackTask):
         y, pitch, yaw = self._pose(physics, obs)
         return shaping(x, y, pitch, yaw, self.body.head_angle_reward)
 
-    def begin_episode(self) -> None:
-        self.crossed = False
+    def reset_rows(self, physics, rows) -> np.ndarray:
+        rows.crossed[:] = False
+        return super().reset_rows(physics, rows)
 
     def outcome(self, physics, actions: np.ndarray, rows):
         x, obs = self.observe(physics, rows)
@@ -81,20 +95,8 @@ class Terrain3DTask(TrackTask):
         critical = self.touched(physics, self._critical_sensors).any(axis=1)
         rows.critical_contact[:] = critical
         y = self._pose(physics, obs)[0]
-        failed, crossed = outcome(x, y, critical, self.end_x, self.half_width)
-        self.crossed = bool(crossed[0])  # one env: 3D Terrain steps per env in a batch
-        return obs, np.where(failed, FAIL_REWARD, reward), failed | crossed
-
-    # ------------------------------------------------------------------ exact snapshots
-    def episode_state(self) -> dict:
-        return {"task/crossed": self.crossed}
-
-    def check_episode_state(self, state) -> dict:
-        env_state.check_keys(state, ("task/crossed",))
-        return {"crossed": env_state.scalar(state, "task/crossed", "flag")}
-
-    def set_episode_state(self, checked: dict) -> None:
-        self.crossed = checked["crossed"]
+        failed, rows.crossed[:] = outcome(x, y, critical, self.end_x, self.half_width)
+        return obs, np.where(failed, FAIL_REWARD, reward), failed | rows.crossed
 
 
 def make_sensor(observation: str, arena) -> HeightScan | Lidar:

@@ -365,8 +365,13 @@ class TrackEnv(gym.Env):
         self.arena.before_step(self.data, action)
         self.task.servo(action[None], self._caps, self.physics.controls)
 
+    def successes(self, rows) -> np.ndarray:
+        """(N,) success flags of the episodes in `rows` (this env's or a batch's): a return
+        above the curriculum profile's success_return (3D Terrain: crossing the line)."""
+        return rows.episode_return > self._success_return
+
     def _info(self, unstable: bool) -> dict:
-        info = {"success": bool(self.rows.episode_return[0] > self._success_return)}
+        info = {"success": bool(self.successes(self.rows)[0])}
         if unstable:
             info["unstable"] = True
         return info

@@ -130,6 +130,12 @@ class TrackTask:
         """Hook for tasks that add observation entries after the lidars (Parkour's surface flags)."""
         return 0
 
+    @property
+    def steps_in_batch(self) -> bool:
+        """N envs of this task step as one batch when its sensor reads rows of heights (the
+        batched env steps the others, Parkour's or a ray-cast lidar's, one env at a time)."""
+        return hasattr(self.lidar, "batch_heights")
+
     def new_rows(self, n: int) -> EpisodeRows:
         """Running-episode rows for n envs of this task."""
         heights = self.lidar.batch_heights(n) if hasattr(self.lidar, "batch_heights") else None
@@ -138,8 +144,8 @@ class TrackTask:
     def take_terrain(self, rows: EpisodeRows, i: int = 0) -> None:
         """Row i's env wrote a new terrain (reset or restore): the lidar reads it from its row."""
         if rows.heights is not None:
-            heights = self.lidar.arena.heights
-            rows.heights[i, : len(heights)] = heights
+            heights = self.lidar.arena.heights  # a profile (cols,) or a field (rows, cols)
+            rows.heights[i, ..., : heights.shape[-1]] = heights
 
     # ------------------------------------------------------------------ actions
     def servo(self, actions: np.ndarray, caps: list[np.ndarray], controls: np.ndarray) -> None:
@@ -223,10 +229,13 @@ class TrackTask:
         return x, obs
 
     def sense(self, physics, rows: EpisodeRows) -> np.ndarray:
-        """(N, nb_rays) terrain sensor readings: the profile lidar reads all envs at once from
-        their rows' heights; another sensor (`read(model, data, origin)`) reads one env."""
+        """(N, nb_rays) terrain sensor readings: the profile lidar and the height scan read all
+        envs at once from their rows' heights and the roots' positions and orientations; another
+        sensor (`read(model, data, origin)`) reads one env."""
         if rows.heights is not None:
-            return self.lidar.read_batch(rows.heights, physics.field("xpos")[:, self._root])
+            root = self._root
+            xpos, xmat = physics.field("xpos")[:, root], physics.field("xmat")[:, root]
+            return self.lidar.read_batch(rows.heights, xpos, xmat)
         data = physics.data
         return self.lidar.read(physics.model, data, data.xpos[self._root])[None]
 
