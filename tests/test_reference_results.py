@@ -16,7 +16,14 @@ import yaml
 
 from acl3d import results
 from acl3d.analysis.export import export_campaign
-from acl3d.analysis.leaderboard import LEADERBOARD_END, LEADERBOARD_START, write_leaderboard
+from acl3d.analysis.leaderboard import (
+    HEADLINE_END,
+    HEADLINE_START,
+    LEADERBOARD_END,
+    LEADERBOARD_START,
+    write_headline,
+    write_leaderboard,
+)
 from acl3d.analysis.reference import analyze_against
 from acl3d.analysis.runs import load_runs
 from acl3d.cli import main
@@ -161,3 +168,11 @@ def test_leaderboard_from_committed_form(tmp_path):
     assert "budget 1,024 steps per run · 3 seeds" in text
     assert (tmp_path / "docs" / "figures" / "reference-mini_mean_return.png").exists()
     assert "](figures/reference-mini_mean_return.png)" in text
+    # the README's headline: the same numbers, shorter
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# acl3d\n{HEADLINE_START}\nold table\n{HEADLINE_END}\n## Next\n")
+    write_headline(root / "reference-mini", readme, "fig.png", "docs/results.md", reps=200)
+    headline = readme.read_text()
+    assert "old table" not in headline and headline.endswith("## Next\n")
+    iqm = next(line for line in text.splitlines() if line.startswith("| alp-gmm"))
+    assert iqm.split(" | ")[5] in headline  # return IQM [95% CI] of alp-gmm, as in the page
