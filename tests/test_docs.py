@@ -138,3 +138,10 @@ def test_every_docs_page_is_in_the_site_navigation():
     pages = {str(p.relative_to(ROOT / "docs")) for p in (ROOT / "docs").rglob("*.md")}
     missing = sorted(pages - _nav_pages(config["nav"]))
     assert not missing, f"add these pages to the nav of mkdocs.yml: {missing}"
+
+
+def test_the_readme_stays_a_front_door():
+    """What acl3d is, the two commands, a minimal example, the headline, links: the rest lives in
+    docs/ (one topic per page)."""
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= 300, f"README.md has {len(lines)} lines; move details to a docs/ page"
