@@ -145,3 +145,12 @@ def test_the_readme_stays_a_front_door():
     docs/ (one topic per page)."""
     lines = (ROOT / "README.md").read_text().splitlines()
     assert len(lines) <= 300, f"README.md has {len(lines)} lines; move details to a docs/ page"
+
+
+def test_the_readme_links_to_files_that_exist():
+    text = (ROOT / "README.md").read_text()
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [t for t in targets if not re.match(r"[a-z]+://", t)]
+    assert local and all((ROOT / t).exists() for t in local), [
+        t for t in local if not (ROOT / t).exists()
+    ]
