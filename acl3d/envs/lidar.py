@@ -87,9 +87,9 @@ class ProfileLidar(Lidar):
         self._batch_n = 0
 
     def read(self, model, data, origin) -> np.ndarray:
-        return self.read_profile(self.arena.heights, origin)
+        return self.read_heights(self.arena.heights, origin)
 
-    def read_profile(self, heights: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    def read_heights(self, heights: np.ndarray, origin: np.ndarray) -> np.ndarray:
         """The rays from `origin` on the profile `heights` (the grid's columns, or more)."""
         x0, z0 = float(origin[0]), float(origin[2])
         j = int((x0 - self._x_min) / self._cell)
@@ -139,7 +139,7 @@ class ProfileLidar(Lidar):
         """
         n, width = heights.shape
         if n == 1:  # one searchsorted beats the counting below (same results, tested)
-            return self.read_profile(heights[0], origins[0])[None]
+            return self.read_heights(heights[0], origins[0])[None]
         if self._batch_n != n:
             self._batch_setup(n, width)
         flat, base, reach = heights.reshape(-1), self._base, self._reach
