@@ -57,18 +57,26 @@ def attach_body(spec: mujoco.MjSpec, body: Body, start_x: float, camera_distance
     add_touch_sensors(spec, body)
 
 
-def add_touch_sensors(spec: mujoco.MjSpec, body: Body) -> None:
+def add_touch_sensors(spec: mujoco.MjSpec, body: Body, against: str | None = None) -> None:
     """A contact sensor (number of contacts found) per geom whose contacts the task reads: the
-    motors' contact-flag geoms and the critical geoms. Sensors are part of every backend's
-    derived fields (`sensordata`), where MjData's contact list is not."""
-    geoms = [m.contact_geom for m in body.motors if m.contact_geom] + list(body.critical_geoms)
+    motors' contact-flag geoms and the critical geoms, touching anything; with `against` (a
+    geom name), the critical geoms' contacts with that geom only (Parkour's ceiling). Sensors
+    are part of every backend's derived fields (`sensordata`), where MjData's contact list is
+    not."""
+    if against is None:
+        geoms = [m.contact_geom for m in body.motors if m.contact_geom]
+        geoms += list(body.critical_geoms)
+    else:
+        geoms = list(body.critical_geoms)
     for geom in dict.fromkeys(geoms):
         sensor = spec.add_sensor(
-            name=touch_sensor_name(PREFIX + geom),
+            name=touch_sensor_name(PREFIX + geom, against),
             type=mujoco.mjtSensor.mjSENS_CONTACT,
             objtype=mujoco.mjtObj.mjOBJ_GEOM,
             objname=PREFIX + geom,
         )
+        if against is not None:
+            sensor.reftype, sensor.refname = mujoco.mjtObj.mjOBJ_GEOM, against
         sensor.intprm[:3] = [1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND), 0, 1]
 
 

@@ -6,14 +6,15 @@ the Stable-Baselines3 vec env (`acl3d.vec.batched_sb3`). Each sub-env is a full 
 and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i plays.
 Resets go through the sub-env's own `reset`.
 
-Tracks and 3D Terrain: the physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs'
-models, on its own C threads), and the task's step (`TrackTask.step`: observation, reward,
-termination, lidars, servo caps) runs once on (N, ...) arrays; each sub-env's running episode is
-its row of the batch's `EpisodeRows` (the sub-env holds a view of it). Between steps the batch
-rows hold the physics; `sync(i)` writes row i into sub-env i's own MjData before anything reads
-it (snapshots, rendering), `restored(i)` takes a sub-env's MjData back after it was set.
-Parkour: water, creepers and grasps are still stepped per sub-env (its own step code), on a
-small pool of long-lived threads (`mj_step` releases the GIL).
+The physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs' own models,
+one call per step on its own C threads). Tracks and 3D Terrain (sensors that read heights rows):
+the task's step (`TrackTask.step`: observation, reward, termination, sensors, servo caps) runs
+once on (N, ...) arrays, and each sub-env's running episode is its row of the batch's
+`EpisodeRows` (the sub-env holds a view of it). Parkour (water, creepers, grasps) and ray-cast
+lidars: each sub-env's own rules run before and after the batch step on its row of the batch
+(`RowPhysics`), one after the other. Between steps the batch rows hold the physics; `sync(i)`
+writes row i into sub-env i's own MjData before anything reads it (snapshots, rendering),
+`restored(i)` takes a sub-env's MjData back after it was reset or set.
 The time limit is the registered one (TimeLimit semantics: truncated once 2000 steps are played).
 """
 
@@ -21,7 +22,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 import gymnasium as gym
 import numpy as np
@@ -44,7 +44,7 @@ class BatchedEnvs:
     Args:
         env_id: an acl3d id or short name ("acl3d/StumpTracks-v0", "parkour", ...).
         num_envs: number of sub-envs, in [1, 4096].
-        threads: physics threads (default: one per core, at most `num_envs`); 1 = no pool.
+        threads: the batch's physics threads (default: one per core, at most `num_envs`).
         max_episode_steps: the time limit (default: the registered one, 2000).
         **env_kwargs: constructor arguments of every sub-env (body, planar, ...).
     """
@@ -79,28 +79,22 @@ class BatchedEnvs:
         self.task_space = e.task_space
         self.elapsed = np.zeros(num_envs, dtype=np.int64)
         self.threads = min(threads, num_envs)
+        # every sub-env's physics is one batch (on its own threads), each on the sub-env's model
+        fields = e.task.physics_fields
+        self.physics = BatchPhysics(
+            [env.model for env in self.envs], e.frame_skip, self.threads, fields
+        )
+        self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
+        self.task = e.task  # every sub-env's task computes the same: on tracks one steps them all
         # tracks and 3D Terrain (sensors reading heights rows): one array step; Parkour (water,
-        # creepers, grasps) and ray-cast lidars: each sub-env's own step code
-        self.physics = self.rows = None
-        if e.task.steps_in_batch:
-            self.task = e.task  # every sub-env's task computes the same; one steps them all
-            self.physics = BatchPhysics(
-                [env.model for env in self.envs], e.frame_skip, self.threads, e.task.physics_fields
-            )
+        # creepers, grasps) and ray-cast lidars: each sub-env's own rules on its row of the batch
+        self.vectorised = e.task.steps_in_batch
+        if self.vectorised:
             self.rows = self.task.new_rows(num_envs)
             for i, env in enumerate(self.envs):
                 env.rows = self.rows.row(i)
             self._caps = [env.model.actuator_forcerange for env in self.envs]
-            self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
-            threads = 1  # the batch has its own threads
-        bounds = np.linspace(0, num_envs, min(threads, num_envs) + 1).astype(int)
-        self._chunks = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
-        self._pool = (
-            ThreadPoolExecutor(len(self._chunks) - 1, thread_name_prefix="acl3d-physics")
-            if len(self._chunks) > 1
-            else None
-        )
-        self._parkour_out: list = [None] * num_envs
+        self._rows_physics = [self.physics.row(i) for i in range(num_envs)]
 
     # ------------------------------------------------------------------ resets
     def reset_one(self, i: int, seed: int | None = None, options: dict | None = None):
@@ -159,19 +153,20 @@ class BatchedEnvs:
     def step(self, actions):
         """(obs, rewards, terminated, truncated, infos list); no reset of finished sub-envs."""
         a = self.check_actions(actions)
-        if self.physics is not None:
+        if self.vectorised:
             self.task.servo(a, self._caps, self.physics.controls)
-            self.physics.step()
-            self._unsynced[:] = True
+            self._step_physics()
             obs, rewards, terminated, unstable = self.task.step(self.physics, a, self.rows)
             success = self.envs[0].successes(self.rows).tolist()
             infos = [{"success": s} for s in success]
             for i in np.flatnonzero(unstable):
                 infos[i]["unstable"] = True
         else:
-            self._actions = a
-            self._run(self._parkour_steps)
-            out = self._parkour_out
+            rows = self._rows_physics
+            for env, action, row in zip(self.envs, a, rows):
+                env.act(action, row)
+            self._step_physics()
+            out = [env.after_physics(ac, row) for env, ac, row in zip(self.envs, a, rows)]
             obs = np.stack([o[0] for o in out])
             rewards = np.array([o[1] for o in out], dtype=np.float64)
             terminated = np.array([o[2] for o in out], dtype=bool)
@@ -180,39 +175,22 @@ class BatchedEnvs:
         truncated = self.elapsed >= self.max_episode_steps
         return obs, rewards, terminated, truncated, infos
 
-    def _parkour_steps(self, lo: int, hi: int) -> None:
-        for i in range(lo, hi):
-            env, a = self.envs[i], self._actions[i]
-            env._apply_action(a)
-            env.physics.step()
-            self._parkour_out[i] = env._after_physics(a)
-
-    def _run(self, work) -> None:
-        """work(lo, hi) over the chunks: chunk 0 on this thread, the others on the pool."""
-        if self._pool is None:
-            work(0, self.num_envs)
-            return
-        futures = [self._pool.submit(work, lo, hi) for lo, hi in self._chunks[1:]]
-        work(*self._chunks[0])
-        for f in futures:
-            f.result()
+    def _step_physics(self) -> None:
+        self.physics.step()
+        self._unsynced[:] = True
 
     # ------------------------------------------------------------------ sub-env state
     def sync(self, i: int) -> None:
         """Bring sub-env i's own MjData up to date (before reading, saving or rendering it)."""
-        if self.physics is not None and self._unsynced[i]:
+        if self._unsynced[i]:
             self.physics.unload(i, self.envs[i].physics)
             self._unsynced[i] = False
 
     def restored(self, i: int) -> None:
         """Sub-env i's physics was reset or set on the env itself: take it into the batch."""
-        if self.physics is not None:
-            self.physics.load(i, self.envs[i].physics)
-            self._unsynced[i] = False
+        self.physics.load(i, self.envs[i].physics)
+        self._unsynced[i] = False
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
         for env in self.envs:
             env.close()

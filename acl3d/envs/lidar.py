@@ -31,7 +31,23 @@ class Lidar:
         self._dist = np.zeros(nb_rays)
 
     def read(self, model: mujoco.MjModel, data: mujoco.MjData, origin: np.ndarray) -> np.ndarray:
-        """Fractions in [0, 1] (1 = no hit); `self.geom_ids` holds the hit geoms (-1 = none)."""
+        """Fractions in [0, 1] (1 = no hit); `self.geom_ids` holds the hit geoms (-1 = none).
+
+        `data` is an MjData, or one simulation of a batch (`acl3d.envs.physics.RowData`), whose
+        rays MuJoCo's batch casts (the same hits on the static terrain these rays see)."""
+        if not isinstance(data, mujoco.MjData):
+            self._dist[:], self.geom_ids[:] = data.ray(
+                origin, self._vec.reshape(-1, 3), self._groups
+            )
+        else:
+            self._cast(model, data, origin)
+        fraction = self._dist * self._inv_range
+        miss = (self.geom_ids < 0) | (fraction > 1.0)
+        fraction[miss] = 1.0
+        self.geom_ids[miss] = -1
+        return fraction
+
+    def _cast(self, model: mujoco.MjModel, data: mujoco.MjData, origin: np.ndarray) -> None:
         mujoco.mj_multiRay(
             model,
             data,
@@ -46,11 +62,6 @@ class Lidar:
             self.nb_rays,
             self.range,
         )
-        fraction = self._dist * self._inv_range
-        miss = (self.geom_ids < 0) | (fraction > 1.0)
-        fraction[miss] = 1.0
-        self.geom_ids[miss] = -1
-        return fraction
 
 
 class ProfileLidar(Lidar):

@@ -16,7 +16,7 @@ import numpy as np
 from acl3d import validation
 from acl3d.bodies.base import Body
 from acl3d.envs import env_state
-from acl3d.envs.arena import Arena, resize_hfield
+from acl3d.envs.arena import Arena, add_touch_sensors, resize_hfield
 from acl3d.envs.climbing import Climbing, add_grasp_welds
 from acl3d.envs.water import PUSH_CLIP, Water
 from acl3d.terrain.parkour import ParkourGenerator, ParkourTerrain
@@ -104,6 +104,7 @@ class ParkourArena(Arena):
         for k in range(self._pool):
             self._add_creeper(spec, k)
         add_grasp_welds(spec, self.body.grasp_sensors)
+        add_touch_sensors(spec, self.body, against="ceiling")
 
     def _add_creeper(self, spec: mujoco.MjSpec, k: int) -> None:
         """Creeper k: one static box, or a chain of hinged segments (movable creepers).

@@ -131,7 +131,6 @@ class ParkourComposition:
             ParkourLidar(self._lidar, arena),
             arena.water,
             arena.climbing,
-            arena.ceiling_geom,
             arena.generator.end_x,
             self.end_on_death,
         )

@@ -133,13 +133,19 @@ class ParkourLidar:
 class ParkourTask(TrackTask):
     """Track task + water, survival counters, grasping and the Parkour observation layout."""
 
+    # what the water forces, the grasps and the creeper rays read or write, too
+    physics_fields = (
+        *TrackTask.physics_fields,
+        *("geom_xpos", "geom_xmat", "subtree_com", "xipos", "xaxis", "xanchor", "xquat"),
+        *("qfrc_actuator", "xfrc_applied", "eq_active"),
+    )
+
     def __init__(
         self,
         bound: BoundBody,
         lidar: ParkourLidar,
         water: Water,
         climbing: Climbing | None,
-        ceiling_geom: int,
         end_x: float,
         end_on_death: bool = False,
         survival_steps: int = SURVIVAL_STEPS,
@@ -152,8 +158,8 @@ class ParkourTask(TrackTask):
         critical = bound.critical_geom_ids
         if self.kind == "walker" and body.name not in PARKOUR_CRITICAL_WALKERS:
             critical = np.zeros(0, dtype=int)
-        self.critical_ids = critical
-        self.ceiling_geom = ceiling_geom
+        self._critical_any = self._sensor_adr(bound.model, critical)
+        self._critical_ceiling = self._sensor_adr(bound.model, critical, against="ceiling")
         self.end_on_death = end_on_death
         self.survival_steps = survival_steps
         self.steps_under_water = 0
@@ -237,14 +243,12 @@ class ParkourTask(TrackTask):
         self.under_water = bool(root_z <= self.water.level)
         return super().reset_rows(physics, rows)
 
-    def critical_touch(self, data: mujoco.MjData) -> bool:
-        """A critical part touches something other than the ceiling."""
-        if not len(self.critical_ids) or not data.ncon:
-            return False
-        pairs = data.contact.geom[: data.ncon]
-        critical = np.isin(pairs, self.critical_ids)
-        other = pairs[:, ::-1]
-        return bool((critical & (other != self.ceiling_geom)).any())
+    def critical_touch(self, physics) -> np.ndarray:
+        """(N,) flags: a critical part touches something other than the ceiling (it has more
+        contacts than those with the ceiling)."""
+        touching = physics.field("sensordata")
+        more = touching[:, self._critical_any] > touching[:, self._critical_ceiling]
+        return np.logical_or.reduce(more, axis=1)
 
     def outcome(self, physics, actions: np.ndarray, rows):
         data = physics.data
@@ -258,7 +262,7 @@ class ParkourTask(TrackTask):
         rows.prev_shaping[:] = shaping
         if alive:
             reward -= self.body.torque_cost_per_unit * torque_use(actions)
-        rows.critical_contact[:] = self.critical_touch(data)
+        rows.critical_contact[:] = self.critical_touch(physics)
         fail = rows.critical_contact | (x < 0.0)
         terminated = fail | (x > self.end_x) | (died and self.end_on_death)
         return obs, np.where(fail, FAIL_REWARD, reward), terminated

@@ -58,6 +58,7 @@ class BatchPhysics:
         self.controls = self.batch.bind("ctrl")
         self.warnings = self.batch.warning[:, :, 1]  # mjWarningStat: (lastinfo, number)
         self._fields = {name: self.batch.bind(name) for name in fields}
+        self.field_names = tuple(self._fields)
 
     def field(self, name: str) -> np.ndarray:
         """Live (N, ...) array of an MjData field named in the constructor's `fields`."""
@@ -70,12 +71,59 @@ class BatchPhysics:
 
     def load(self, i: int, physics: PhysicsState) -> None:
         """Make row i the state of `physics` (a sub-env's MjData, after its own reset or
-        restore), with the state its last step started from."""
+        restore). Its last step is replayed from the state it started from, so that the row's
+        derived fields are that MjData's too (per-env rules read them before the next step)."""
+        self.state[i] = physics.step_start
+        self.batch.step(ids=[i], nstep=self.nstep)
         mujoco.mj_getState(physics.model, physics.data, self.state[i], INTEGRATION)
         self.start[i] = physics.step_start
         self.warnings[i] = physics.data.warning.number
+
+    def row(self, i: int) -> RowPhysics:
+        """Simulation i as a backend of one env (N = 1), views of this batch's arrays."""
+        return RowPhysics(self, i)
 
     def unload(self, i: int, physics: PhysicsState) -> None:
         """Write row i into `physics`'s MjData, derived fields included (its last step is
         replayed from the row it started from)."""
         physics.adopt(self.start[i], self.state[i], self.warnings[i])
+
+
+class RowData:
+    """MjData-like access to one simulation of a `BatchPhysics`: `row.qpos` is row i of the
+    batch's (N, nq) array (writable for state fields such as `xfrc_applied` and `eq_active`,
+    read-only for derived ones). Only fields bound by the batch (its `fields`) exist."""
+
+    def __init__(self, physics: BatchPhysics, i: int):
+        self._fields = {name: physics.field(name)[i] for name in physics.field_names}
+        self._batch, self._ids = physics.batch, [i]
+
+    def ray(self, origin: np.ndarray, directions: np.ndarray, groups: np.ndarray):
+        """(distances, geom ids) of rays from `origin` along `directions` (nray, 3) in this
+        simulation, geoms of `groups` only (MuJoCo's batch rays: -1 for a miss)."""
+        dist, geoms = self._batch.ray(origin, directions, groups, ids=self._ids)
+        return dist[0], geoms[0]
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        try:
+            return self._fields[name]
+        except KeyError:
+            raise AttributeError(f"field {name!r} is not bound by this batch") from None
+
+
+class RowPhysics:
+    """Simulation i of a `BatchPhysics` as the backend of one env (N = 1): what a sub-env's
+    per-env rules (Parkour's water, grasps and creepers) read and write between batch steps;
+    `data` is a `RowData`, `model` the sub-env's own model. It does not step: the batch does."""
+
+    def __init__(self, physics: BatchPhysics, i: int):
+        self.model = physics.models[i]
+        self.models = [self.model]
+        self.data = RowData(physics, i)
+        self.controls = physics.controls[i : i + 1]
+        self.warnings = physics.warnings[i : i + 1]
+        self._fields = {name: physics.field(name)[i : i + 1] for name in physics.field_names}
+
+    def field(self, name: str) -> np.ndarray:
+        """Live (1, ...) array of a bound MjData field."""
+        return self._fields[name]

@@ -318,15 +318,16 @@ class TrackEnv(gym.Env):
 
     def step(self, action):
         action = validation.real_array("action", action, shape=(self.body.action_size,))
-        self._apply_action(action)
+        self.act(action, self.physics)
         self.physics.step()
         if self.render_mode == "human":
             self.render()
-        return self._after_physics(action)
+        return self.after_physics(action, self.physics)
 
-    def _after_physics(self, action: np.ndarray):
-        """The step's result once physics ran (the batched env calls it per Parkour sub-env)."""
-        obs, reward, terminated, unstable = self.task.step(self.physics, action[None], self.rows)
+    def after_physics(self, action: np.ndarray, physics):
+        """The step's (obs, reward, terminated, truncated, info) once `physics` (this env's own,
+        or its row of a batch) stepped."""
+        obs, reward, terminated, unstable = self.task.step(physics, action[None], self.rows)
         return obs[0], float(reward[0]), bool(terminated[0]), False, self._info(unstable[0])
 
     def render(self):
@@ -355,15 +356,16 @@ class TrackEnv(gym.Env):
 
     # ------------------------------------------------------------------ internals
     def _control_step(self, action: np.ndarray) -> None:
-        self._apply_action(action)
+        self.act(action, self.physics)
         self.physics.step()
 
-    def _apply_action(self, action: np.ndarray) -> None:
-        """The task's servos (`TrackTask.servo`), after the task's rules (Parkour: dead bodies
-        play zeros) and the arena's forces (Parkour: grasps released, water)."""
+    def act(self, action: np.ndarray, physics) -> None:
+        """Before `physics` (this env's own, or its row of a batch) steps: the task's servos
+        (`TrackTask.servo`), after the task's rules (Parkour: dead bodies play zeros) and the
+        arena's forces (Parkour: grasps released, water)."""
         action = self.task.played(action)
-        self.arena.before_step(self.data, action)
-        self.task.servo(action[None], self._caps, self.physics.controls)
+        self.arena.before_step(physics.data, action)
+        self.task.servo(action[None], self._caps, physics.controls)
 
     def successes(self, rows) -> np.ndarray:
         """(N,) success flags of the episodes in `rows` (this env's or a batch's): a return

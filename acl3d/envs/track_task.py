@@ -42,9 +42,10 @@ _PLANAR_VELOCITY_GAINS = np.array([0.12, 0.08])  # vx, vz in the head observatio
 _LOW_HIGH = np.array([-1.0, 1.0])  # a force range from a cap (x -1 is exact negation)
 
 
-def touch_sensor_name(geom: str) -> str:
-    """The contact sensor that counts the contacts of the (prefixed) geom `geom`."""
-    return TOUCH_SENSOR_PREFIX + geom
+def touch_sensor_name(geom: str, against: str | None = None) -> str:
+    """The contact sensor that counts the contacts of the (prefixed) geom `geom` (with the geom
+    `against` only, if given)."""
+    return TOUCH_SENSOR_PREFIX + geom + ("" if against is None else "|" + against)
 
 
 def torque_use(actions: np.ndarray) -> np.ndarray:
@@ -115,9 +116,9 @@ class TrackTask:
         self._root = bound.root_id
 
     @staticmethod
-    def _sensor_adr(model: mujoco.MjModel, geom_ids: np.ndarray) -> np.ndarray:
-        """sensordata columns of the touch sensors of these geoms."""
-        names = [touch_sensor_name(model.geom(int(g)).name) for g in geom_ids]
+    def _sensor_adr(model: mujoco.MjModel, geom_ids: np.ndarray, against=None) -> np.ndarray:
+        """sensordata columns of the touch sensors of these geoms (see `touch_sensor_name`)."""
+        names = [touch_sensor_name(model.geom(int(g)).name, against) for g in geom_ids]
         return np.array([model.sensor(n).adr[0] for n in names], dtype=int)
 
     def grasp_state(self) -> np.ndarray:
