@@ -261,8 +261,9 @@ def test_batched_envs_match_single_envs(observation, one_batch):
         threads=2,
         observation=observation,
     )
-    # the height scan steps all sub-envs as one MuJoCo batch; ray-cast lidars one by one
-    assert (vec.unwrapped.batch.physics is not None) == one_batch
+    # all sub-envs step as one MuJoCo batch; the height scan's rules run on (N, .) arrays,
+    # ray-cast lidars' one sub-env after the other
+    assert vec.unwrapped.batch.vectorised == one_batch
     singles = [gym.make(ENV_ID, observation=observation) for _ in range(n)]
     obs, _ = vec.reset(seed=seed, options={"task": TASK})
     for i, env in enumerate(singles):
