@@ -1,6 +1,7 @@
 """Plots and a video of a run directory: what a person looks at after (or during) training.
 
-* mastered.png   % mastered test tasks (return > 230) and mean test return vs training steps
+* mastered.png   % mastered test tasks (return > the env's success return) and mean test
+                 return vs training steps
 * returns.png    training episode returns vs steps (raw and a moving average)
 * curriculum.png sampled training tasks in the first two task dimensions, coloured by step
 * final.mp4      the policy (final or latest checkpoint) on a few test tasks
@@ -14,7 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from acl3d.envs.profiles import SUCCESS_RETURN as MASTERED_THRESHOLD
+from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.training.run_dir import RunDir, read_csv
 
 
@@ -26,7 +27,7 @@ def plot_mastered(run: RunDir, out: Path) -> Path | None:
     ax = fig.subplots()
     ax.plot(cols["step"], cols["mastered_pct"], "o-", color="tab:blue", label="% mastered")
     ax.set_xlabel("training steps")
-    ax.set_ylabel("% mastered test tasks (return > 230)", color="tab:blue")
+    ax.set_ylabel("% mastered test tasks", color="tab:blue")
     ax.set_ylim(-2, 102)
     ax2 = ax.twinx()
     ax2.plot(cols["step"], cols["mean_return"], "s--", color="tab:orange", label="mean return")
@@ -47,7 +48,8 @@ def plot_returns(run: RunDir, out: Path) -> Path | None:
     window = max(1, min(100, len(returns) // 10))
     smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
     ax.plot(steps[window - 1 :], smooth, color="black", label=f"mean of {window}")
-    ax.axhline(MASTERED_THRESHOLD, color="tab:green", linestyle=":", label="success (230)")
+    success = _success_return(run)
+    ax.axhline(success, color="tab:green", linestyle=":", label=f"success ({success:g})")
     ax.set_xlabel("training steps")
     ax.set_ylabel("training episode return")
     ax.set_title(f"{run.path.name}: training returns (tasks from the curriculum)")
@@ -83,6 +85,19 @@ def plot_curriculum(run: RunDir, out: Path) -> Path | None:
     ax.set_title(f"{run.path.name}: sampled training tasks")
     ax.grid(alpha=0.3)
     return _save(fig, out / "curriculum.png")
+
+
+def _success_return(run: RunDir) -> float:
+    """The env's success return as the run's teacher dump recorded it (its curriculum profile;
+    the default profile's before the first dump)."""
+    path = run.teacher_prefix.with_suffix(".json")
+    if path.exists():
+        from acl3d.teachers.base import load_state
+
+        recorded = load_state(run.teacher_prefix).get("success_return")
+        if recorded is not None:
+            return float(recorded)
+    return CurriculumProfile().success_return
 
 
 def _teacher_bounds(run: RunDir):
