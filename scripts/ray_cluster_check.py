@@ -33,6 +33,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,10 +63,11 @@ class Checks:
         return ok
 
 
-def campaign_cmd(out: Path, *extra: str) -> list[str]:
+def campaign_cmd(out: Path, *extra: str, seeds: int = SEEDS, sets: dict = SETS) -> list[str]:
+    """`acl3d campaign run quick` into `out`, 2 runs at a time."""
     cmd = [sys.executable, "-m", "acl3d", "campaign", "run", "quick", "--out", str(out)]
-    cmd += ["--seeds", str(SEEDS), "--max-parallel", "2", *extra]
-    for key, value in SETS.items():
+    cmd += ["--seeds", str(seeds), "--max-parallel", "2", *extra]
+    for key, value in sets.items():
         cmd += ["--set", f"{key}={json.dumps(value)}"]
     return cmd
 
@@ -113,31 +115,35 @@ class Node:
         self.log.close()
 
 
+@dataclass
+class Cluster:
+    address: str
+    nodes: dict[str, Node]
+    names: dict[str, str]  # Ray node id -> node name
+    env: dict[str, str]  # for every client: this checkout's acl3d, the cluster's token
+
+
 @contextmanager
-def cluster(work: Path) -> Iterator[tuple[str, dict[str, Node], dict[str, str]]]:
-    """A head and a second node on this machine: (address, nodes by name, node id -> name).
-    While it runs, the environment holds what every process of the cluster and its clients
-    share: this checkout's acl3d on PYTHONPATH, one token for Ray's token authentication."""
-    saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "RAY_AUTH_MODE", "RAY_AUTH_TOKEN")}
+def cluster(work: Path) -> Iterator[Cluster]:
+    """A head and a second node on this machine. Its clients are subprocesses given `env`: a
+    process that joined a Ray cluster keeps its token, and could not start another Ray later."""
     path = os.environ.get("PYTHONPATH", "")
-    if str(ROOT) not in path.split(os.pathsep):
-        os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), path]))
-    os.environ.update(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(32))
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), path])),
+        "RAY_AUTH_MODE": "token",  # one token shared by every process of the cluster
+        "RAY_AUTH_TOKEN": secrets.token_hex(32),
+    }
     address = f"127.0.0.1:{free_port()}"
     nodes: dict[str, Node] = {}
     try:
         head = ["--head", "--port", address.rsplit(":", 1)[1], "--include-dashboard", "false"]
-        nodes["head"] = Node("head", head, dict(os.environ), work)
-        nodes["worker"] = Node("worker", ["--address", address], dict(os.environ), work)
-        yield address, nodes, node_names(address, len(nodes))
+        nodes["head"] = Node("head", head, env, work)
+        nodes["worker"] = Node("worker", ["--address", address], env, work)
+        yield Cluster(address, nodes, node_names(address, len(nodes), env), env)
     finally:
         for node in reversed(nodes.values()):
             node.kill()
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
 
 
 def wait_for(what: str, condition, timeout: float = TIMEOUT_S, poll: float = 0.1):
@@ -165,23 +171,22 @@ def attempts(run: Path) -> list[tuple[int, str, str]]:
     return out
 
 
-def node_names(address: str, count: int) -> dict[str, str]:
-    """Ray node id -> the name of the acl3d resource the node declares, once `count` are up."""
-    import ray
-
-    ray.init(address=address, logging_level="ERROR", log_to_driver=False)
-    try:
-        nodes = wait_for(
-            f"{count} Ray nodes",
-            lambda: (
-                (alive := [n for n in ray.nodes() if n["Alive"]]) and len(alive) == count and alive
-            ),
-        )
-        return {
-            n["NodeID"]: next(k for k in n["Resources"] if k in ("head", "worker")) for n in nodes
-        }
-    finally:
-        ray.shutdown()
+def node_names(address: str, count: int, env: dict[str, str]) -> dict[str, str]:
+    """Ray node id -> the name of the resource the node declares, once `count` nodes are up."""
+    code = (
+        "import json, sys, time, ray\n"
+        f"ray.init(address={address!r}, logging_level='ERROR', log_to_driver=False)\n"
+        f"while len(alive := [n for n in ray.nodes() if n['Alive']]) < {count}:\n"
+        "    time.sleep(0.2)\n"
+        "print(json.dumps({n['NodeID']: sorted(set(n['Resources']) & {'head', 'worker'})[0]"
+        " for n in alive}))\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=TIMEOUT_S
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(f"the cluster did not come up:\n{proc.stderr[-2000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def running(run: Path) -> bool:
@@ -239,18 +244,17 @@ def main() -> int:
     reference, out = work / "local", work / "cluster"
     runs = out / "runs"
     try:
-        with cluster(work) as (address, nodes, names):
+        with cluster(work) as c:
             print(f"[1] reference campaign, local executor -> {reference}", flush=True)
             local = campaign_cmd(reference, "--executor", "local")
-            subprocess.run(local, check=True, stdout=subprocess.DEVNULL)
-            print(f"[2] cluster: head and a second node at {address}; campaign -> {out}")
-            driver = subprocess.Popen(
-                campaign_cmd(out, "--address", address), stdout=subprocess.DEVNULL
-            )
+            subprocess.run(local, env=c.env, check=True, stdout=subprocess.DEVNULL)
+            print(f"[2] cluster: head and a second node at {c.address}; campaign -> {out}")
+            submit = campaign_cmd(out, "--address", c.address)
+            driver = subprocess.Popen(submit, env=c.env, stdout=subprocess.DEVNULL)
 
             def running_on(node: str):
                 """(run, pid) of a run whose latest attempt trains on `node` past a checkpoint."""
-                for run, i, pid, where in placement(runs, names):
+                for run, i, pid, where in placement(runs, c.names):
                     last = i == len(attempts(runs / run)) - 1
                     if last and where == node and running(runs / run) and checkpoint(runs / run):
                         return run, pid
@@ -259,10 +263,10 @@ def main() -> int:
             victim, pid = wait_for(
                 "a run on the second node", lambda: running_on("worker"), poll=0.02
             )
-            where = sorted({(run, node) for run, _, _, node in placement(runs, names)})
+            where = sorted({(run, node) for run, _, _, node in placement(runs, c.names)})
             check({n for _, n in where} == {"head", "worker"}, f"runs on both nodes: {where}")
             print(f"[3] SIGKILL the second node while {victim} trains on it (pid {pid})")
-            nodes["worker"].kill()
+            c.nodes["worker"].kill()
             wait_for("the attempt on the killed node to end", lambda: not alive(pid), 60)
             latest = checkpoint(runs / victim)
 
@@ -287,8 +291,7 @@ def main() -> int:
                 check(False, "its attempt still runs 60 s after it")
 
             print("[5] the same command continues the campaign", flush=True)
-            again = campaign_cmd(out, "--address", address)
-            rc = subprocess.run(again, stdout=subprocess.DEVNULL).returncode
+            rc = subprocess.run(submit, env=c.env, stdout=subprocess.DEVNULL).returncode
             check(rc == 0, f"continued campaign exit status {rc}")
         for run in sorted(p.name for p in (reference / "runs").iterdir()):
             status = json.loads((runs / run / "status.json").read_text())["status"]
