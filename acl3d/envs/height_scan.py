@@ -65,7 +65,7 @@ class HeightScan:
         bit-identical to the same env scanned alone, whatever N.
         """
         a, b = rotations[:, 0], rotations[:, 3]
-        norm = np.maximum(np.sqrt(a * a + b * b), MIN_NORM)
+        norm = np.maximum(np.hypot(a, b), MIN_NORM)
         shift = (origins[:, 1::-1] - self._min) * self._inv_cell  # (N, 2): (row, column)
         coords = (
             (a / norm)[:, None, None] * self._cos_part
