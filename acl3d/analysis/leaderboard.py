@@ -51,8 +51,8 @@ def leaderboard_rows(runs: list[Run], reps: int = stats.DEFAULT_REPS, seed: int 
             x = _finals(runs, teacher, metric)
             iqm = stats.aggregate_interval([x], stats.iqm, reps, seed)
             row[f"{short} IQM [95% CI]"] = f"{iqm.point:.1f} [{iqm.low:.1f}, {iqm.high:.1f}]"
-            std = x.std(ddof=1) if x.size > 1 else float("nan")
-            row[f"{short} mean ± std"] = f"{x.mean():.1f} ± {std:.1f}"
+            std = f"{x.std(ddof=1):.1f}" if x.size > 1 else "–"  # one seed: no spread
+            row[f"{short} mean ± std"] = f"{x.mean():.1f} ± {std}"
             row[f"{short} p vs Random"] = (
                 "" if teacher == BASELINE else _welch_cell(x, _finals(runs, BASELINE, metric))
             )
