@@ -32,3 +32,17 @@ def test_the_package_ships_its_licence_and_type_hints():
     assert (ROOT / "acl3d" / "py.typed").exists()
     pyproject = (ROOT / "pyproject.toml").read_text()
     assert '"py.typed"' in pyproject and 'attr = "acl3d.version.__version__"' in pyproject
+
+
+def test_the_wheel_lists_every_python_package_of_the_source_tree():
+    """A package missing from pyproject's list installs without it (the source tree hides that)."""
+    import tomllib
+
+    listed = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    found = {
+        ".".join(init.parent.relative_to(ROOT).parts)
+        for init in (ROOT / "acl3d").rglob("__init__.py")
+    }
+    assert found - listed == set(), "add these packages to [tool.setuptools] packages"
