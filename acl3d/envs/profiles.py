@@ -13,7 +13,7 @@ next to the environments, and reaches the teachers through `env.unwrapped.curric
   is the default for the 2-D stump space; Parkour names its walking, climbing and swimming sets.
 * 3D Terrain: the success flag is crossing the finish line (returns of crossings are ~250-330);
   the prior is centred on the easy corner (no blocks, no slopes, widest spacing), variance
-  (0.1 * range)^2; the "graded" test set runs from trivial to infeasible.
+  (0.1 * range)^2; the "graded" test set runs from flat ground to the hardest corner.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""3D Terrain test sets: a graded set from trivial to infeasible, loadable by name.
+"""3D Terrain test sets: a graded set from flat ground to the hardest corner, by name.
 
 "graded": task k of n has difficulty d = k / (n - 1); every parameter of the space moves from
 its easy end to its hard end with d (heights, slopes and roughness up, spacing down, blocks
