@@ -190,6 +190,22 @@ def test_run_killed_after_its_last_checkpoint_finishes_on_resume(reference, tmp_
     assert_same_run(reference("sac-1"), run)
 
 
+def test_run_killed_while_publishing_its_last_checkpoint_resumes_exactly(reference, tmp_path):
+    """Killed between publishing the last checkpoint and naming it in LATEST: the run resumes
+    from the one before, after the final evaluation and the episodes up to the end were logged.
+    The logs are cut back to that checkpoint, and the final evaluation, redone as the first of a
+    fresh evaluation env (the uninterrupted run's second), is the same."""
+    run = tmp_path / "publishing"
+    shutil.copytree(reference("sac-1"), run)
+    (run / "final_model.zip").unlink()
+    RunDir(run).set_status("running")
+    previous = f"step_{STEPS - CHECKPOINT_EVERY:012d}"
+    (run / "checkpoints" / "LATEST").write_text(previous)
+    assert main(["train", "--resume", str(run), "--no-progress", "--quiet"]) == 0
+    assert read_latest(run) == f"step_{STEPS:012d}"
+    assert_same_run(reference("sac-1"), run)
+
+
 class CountingCallback(BaseCallback):
     """A user's own SB3 callback."""
 
