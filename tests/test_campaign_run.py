@@ -84,7 +84,7 @@ def _mark_started(run_dir: Path) -> None:
     (run_dir / "config.yaml").write_text("config: {}\n")
 
 
-def test_interrupted_campaign_continues(tmp_path):
+def test_interrupted_campaign_continues(tmp_path, checkout):
     out = tmp_path / "camp"
     options = {**TINY, "steps": 1536, "checkpoint_every": 256, "eval_every": 1024}
     cmd = [sys.executable, "-m", "acl3d", "campaign", "run", "quick", "--out", str(out),
@@ -92,7 +92,7 @@ def test_interrupted_campaign_continues(tmp_path):
     sets = [f"{k}={json.dumps(v)}" for k, v in options.items()]
     for item in sets:
         cmd += ["--set", item]
-    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL)
+    proc = subprocess.Popen(cmd, cwd=checkout, start_new_session=True, stdout=subprocess.DEVNULL)
     first, second = out / "runs" / "random__s0", out / "runs" / "alp-gmm__s0"
     deadline = time.monotonic() + 120
     try:  # SIGKILL the campaign process once the first run is done and the second has a checkpoint

@@ -93,10 +93,10 @@ def read_latest(run: Path) -> str | None:
 
 
 @pytest.mark.parametrize("setup", list(SETUPS))
-def test_sigkilled_run_resumes_bit_identically(setup, reference, tmp_path):
+def test_sigkilled_run_resumes_bit_identically(setup, reference, tmp_path, checkout):
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "acl3d", "train", *COMMON, *SETUPS[setup], "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, cwd=checkout, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 300
         while read_latest(out) is None and proc.poll() is None and time.monotonic() < deadline:
