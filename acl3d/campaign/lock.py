@@ -18,6 +18,7 @@ import fcntl
 import json
 import os
 import socket
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -68,9 +69,15 @@ def directory_busy(path) -> bool:
         os.close(fd)
 
 
-def _holder(fd: int) -> str:
-    try:
-        info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
-        return f"pid {int(info['pid'])} on {info['host']}"
-    except (OSError, ValueError, KeyError, TypeError):  # being written right now
-        return "another process"
+def _holder(fd: int, patience_s: float = 1.0) -> str:
+    """Who holds the lock, as its holder wrote it. A holder writes just after taking the lock,
+    so a file still empty or half-written is read again for up to `patience_s`."""
+    deadline = time.monotonic() + patience_s
+    while True:
+        try:
+            info = json.loads(os.pread(fd, 4096, 0).decode())
+            return f"pid {int(info['pid'])} on {info['host']}"
+        except (OSError, ValueError, KeyError, TypeError):  # not written yet, or being written
+            if time.monotonic() > deadline:
+                return "another process"
+            time.sleep(0.01)
