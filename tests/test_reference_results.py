@@ -176,3 +176,15 @@ def test_leaderboard_from_committed_form(tmp_path):
     assert "old table" not in headline and headline.endswith("## Next\n")
     iqm = next(line for line in text.splitlines() if line.startswith("| alp-gmm"))
     assert iqm.split(" | ")[5] in headline  # return IQM [95% CI] of alp-gmm, as in the page
+
+
+def test_an_incomplete_reference_is_named_before_the_report(tmp_path, capsys):
+    partial = tmp_path / "reference-partial"
+    shutil.copytree(REFERENCE, partial)
+    shutil.rmtree(partial / "riac__s2")  # exported before its last run finished
+    code = main(["analyze", str(NEW), "--reference", str(partial), "--metric", "mean_return",
+                 "--reps", "200", "--out", str(tmp_path / "report")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0
+    assert "reference 'reference-partial' is incomplete" in err and "riac (2 of 3 seeds)" in err
+    assert "alp-gmm (" not in err and "random (" not in err

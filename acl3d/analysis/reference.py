@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,20 @@ def reference_runs(reference: str) -> tuple[str, list[Run]]:
     if not folder.is_dir():
         folder = results.path(reference)  # raises naming the shipped protocols
     return folder.name, load_runs(folder)
+
+
+def missing_runs(folder: Path, runs: list[Run]) -> list[str]:
+    """The runs a protocol's spec asks for that its folder lacks (a campaign exported before it
+    finished): '<teacher> (k of n seeds)' per short teacher; empty without a protocol.yaml."""
+    manifest = folder / "protocol.yaml"
+    if not manifest.is_file():
+        return []
+    spec = (yaml.safe_load(manifest.read_text()) or {}).get("spec") or {}
+    seeds = spec.get("seeds", [])
+    wanted = len(seeds) if isinstance(seeds, list) else int(seeds or 0)
+    teachers = (spec.get("grid") or {}).get("teacher") or {}
+    counts = {name: sum(r.teacher == name for r in runs) for name in teachers}
+    return [f"{name} ({k} of {wanted} seeds)" for name, k in counts.items() if k < wanted]
 
 
 def _get(doc: dict, keys: tuple[str, ...]):
@@ -176,6 +191,11 @@ def analyze_against(
     NEW_ROOT/report_vs_<reference>)."""
     check_options(metric, reps)
     label, reference_set = reference_runs(reference)
+    folder = Path(reference) if Path(reference).is_dir() else results.path(reference)
+    missing = missing_runs(folder, reference_set)
+    if missing:
+        print(f"[acl3d] warning: the reference {label!r} is incomplete, its campaign was exported "
+              f"before it finished: {', '.join(missing)}", file=sys.stderr, flush=True)  # fmt: skip
     new = load_runs(new_root)
     check_protocol(new, reference_set, label)
     runs = merged_runs(new, reference_set, label)
