@@ -95,6 +95,7 @@ def assert_same_training(a: Path, b: Path) -> None:
         (["--env-kwarg", "max_episode_steps=-1"], "--env-kwarg max_episode_steps=-1"),
         (["--env-kwarg", "bogus=1"], "--env-kwarg bogus=1; valid: keyword arguments"),
         (["--device", "bogus"], "--device='bogus'"),
+        (["--student", "sb3:DQN"], "--student='sb3:DQN'; DQN does not support the environment's"),
     ],
 )
 def test_bad_options_are_refused_before_anything_is_written(args, option, tmp_path, capsys):

@@ -315,6 +315,7 @@ def test_config_file_holds_options_and_cli_overrides_it(tmp_path):
         ({"n_envs": 2, "envs_per_worker": 3}, "envs_per_worker"),
         ({"teacher_params": [1]}, "teacher_params"),
         ({"device": 0}, "device"),
+        ({"student": "sb3:DQN"}, "student='sb3:DQN'; DQN does not support"),  # Discrete only
     ],
 )
 def test_config_is_strict(bad, name, tmp_path):

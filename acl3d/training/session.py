@@ -172,6 +172,7 @@ class Session:
         self.config, self.run, self.resume_from = config, run, resume_from
         env = probe_env(config)
         try:
+            students.check_action_space(config.student, env.observation_space, env.action_space)
             task_space, profile = probe_task_space(config, env)
             self.task_names = task_space.flat_names()
             with np.errstate(over="ignore"):  # a test task beyond float32 is refused just below

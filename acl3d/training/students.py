@@ -22,6 +22,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import gymnasium
 import numpy as np
 import stable_baselines3
 import torch
@@ -30,6 +31,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from acl3d import validation as check
 from acl3d.training.exclusion import (
@@ -138,6 +140,37 @@ def algorithm_class(student: str) -> type[BaseAlgorithm]:
     if not (isinstance(cls, type) and issubclass(cls, BaseAlgorithm)):
         raise ValueError(f"student {student!r} is not a Stable-Baselines3 algorithm class; {valid}")
     return cls
+
+
+class _Spaces(gymnasium.Env):
+    """A stand-in env that only has spaces: what an algorithm's constructor checks."""
+
+    def __init__(self, observation_space, action_space):
+        self.observation_space, self.action_space = observation_space, action_space
+
+
+def check_action_space(student: str, observation_space, action_space) -> None:
+    """Refuse an algorithm that cannot act in the env's action space (DQN: Discrete only).
+
+    SB3 declares an algorithm's supported action spaces as a constructor argument that
+    `BaseAlgorithm.__init__` asserts on, not as a class attribute; so the algorithm is constructed
+    on a stand-in env with the run's spaces and without its networks (`_init_setup_model=False`).
+    An algorithm whose constructor lacks that argument (not SB3's) is left to its own checks.
+    """
+    cls = algorithm_class(student)
+    if "_init_setup_model" not in inspect.signature(cls.__init__).parameters:
+        return
+    venv = DummyVecEnv([lambda: _Spaces(observation_space, action_space)])
+    try:
+        cls("MlpPolicy", venv, device="cpu", _init_setup_model=False)
+    except AssertionError as exc:
+        if "action space" not in str(exc):
+            raise
+        raise ValueError(
+            f"student={student!r}; {cls.__name__} does not support the environment's action "
+            f"space {action_space}; valid: sac, ppo or an algorithm for continuous (Box) "
+            "actions (sb3:TD3, sb3:A2C, sb3:DDPG, ...)"
+        ) from None
 
 
 def is_on_policy(student: str) -> bool:
