@@ -5,6 +5,13 @@ this machine; the original 2D Box2D Parkour runs ~6,200 steps/s with the biped a
 new task in ~6.5 ms on this machine class (reference: mujoco-notes.md). Run on an idle machine:
 
     python scripts/bench_parkour.py --steps 3000 --out /tmp/parkour_images
+    python scripts/bench_parkour.py --batched 16 --rounds 3   # the batched env vs one env
+
+`--batched N` times, instead, N envs in one batched vector env (`gymnasium.make_vec(...,
+vectorization_mode="vector_entry_point")`, physics on one thread per core, autoresets included)
+against one `gymnasium.make` env (resets included) on the same task, for the biped in water and
+the climber grasping creepers: steps/s (wall clock, best of interleaved rounds) and the ratio,
+and the same ratio in process CPU time per env step (robust to other load on the machine).
 """
 
 from __future__ import annotations
@@ -39,6 +46,64 @@ def step_rate(env, steps: int, seed: int = 0) -> float:
         if terminated:
             env.reset()
     return steps / elapsed
+
+
+BATCHED_CASES = {  # the biped wades in deep water; the climber grasps the creepers, also wet
+    "classic_bipedal": {"input_vector": [0.2, -0.3, 0.1], "water_level": 0.9},
+    "climbing_profile_chimpanzee": {"water_level": 0.9, "creepers_height": 2.0},
+}
+
+
+def timed(step, actions) -> tuple[float, float]:
+    """(wall, process CPU) seconds of `step(a)` over the actions."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    for a in actions:
+        step(a)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def single_times(body: str, task: dict, steps: int) -> tuple[float, float]:
+    """Wall and CPU seconds per env step of one env, its resets included."""
+    env = gym.make("acl3d/Parkour-v0", body=body)
+    env.reset(seed=0, options={"task": task})
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, env.action_space.shape[0]))
+
+    def step(a):
+        _, _, terminated, truncated, _ = env.step(a)
+        if terminated or truncated:
+            env.reset()
+
+    wall, cpu = timed(step, actions)
+    env.close()
+    return wall / steps, cpu / steps
+
+
+def batched_times(body: str, task: dict, n: int, steps: int) -> tuple[float, float]:
+    """Wall and CPU seconds per env step of N envs in the batched vector env."""
+    vec = gym.make_vec(
+        "acl3d/Parkour-v0", num_envs=n, vectorization_mode="vector_entry_point", body=body
+    )
+    vec.reset(seed=0, options={"task": task})
+    shape = (max(1, steps // n), n, vec.single_action_space.shape[0])
+    actions = np.random.default_rng(0).uniform(-1, 1, shape)
+    wall, cpu = timed(vec.step, actions)
+    vec.close()
+    return wall / (shape[0] * n), cpu / (shape[0] * n)
+
+
+def compare_batched(n: int, steps: int, rounds: int) -> None:
+    print(f"Parkour, {n} batched envs vs one env ({steps} env steps per cell, best of {rounds})")
+    print("| body, task | one env, steps/s | batched, steps/s | batched / one | in CPU time |")
+    print("|---|---|---|---|---|")
+    for body, task in BATCHED_CASES.items():
+        best = {"single": (np.inf, np.inf), "batched": (np.inf, np.inf)}
+        for _ in range(rounds):  # interleaved: load changes hit both alike
+            best["single"] = min(best["single"], single_times(body, task, steps))
+            best["batched"] = min(best["batched"], batched_times(body, task, n, steps))
+        (sw, sc), (bw, bc) = best["single"], best["batched"]
+        print(
+            f"| {body} {task} | {1 / sw:,.0f} | {1 / bw:,.0f} | {sw / bw:.2f}x | {sc / bc:.2f}x |"
+        )
 
 
 def reset_ms(env, n: int, seed: int = 0) -> float:
@@ -93,7 +158,14 @@ def main() -> None:
     parser.add_argument(
         "--out", type=Path, default=None, help="write the docs images (docs/figures) here"
     )
+    parser.add_argument(
+        "--batched", type=int, default=0, metavar="N", help="time N batched envs vs one env"
+    )
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (--batched)")
     args = parser.parse_args()
+    if args.batched:
+        compare_batched(args.batched, args.steps, args.rounds)
+        return
 
     print(f"original 2D Parkour (biped): ~{ORIGINAL_STEPS} steps/s, reset ~{ORIGINAL_RESET_MS} ms")
     for body, (task, kwargs) in CASES.items():

@@ -291,10 +291,11 @@ def test_drowning_and_suffocation_after_600_steps(body, level, dies):
     zeros = np.zeros(env.body.action_size)
     for _ in range(SURVIVAL_STEPS):
         obs, *_ = env.step(zeros)
-    assert obs[flags + 1] == 0.0 and not env.task.dead
+    assert obs[flags + 1] == 0.0 and not env.get_state()["survival/dead"]
     for _ in range(2):
         obs, reward, terminated, *_ = env.step(np.ones(env.body.action_size))
-    assert env.task.dead == dies and obs[flags + 1] == float(dies) and not terminated
+    assert env.get_state()["survival/dead"] == dies
+    assert obs[flags + 1] == float(dies) and not terminated
     if dies:  # dead bodies play zero actions, which cost nothing
         assert env.data.ctrl[env.bound.actuator_ids] == pytest.approx(0.0)
 

@@ -148,9 +148,6 @@ class Arena:
     def settle(self, data: mujoco.MjData, control_step) -> None:
         """Steps after the reset's idle step, before the first observation (none on a track)."""
 
-    def before_step(self, data: mujoco.MjData, action: np.ndarray) -> None:
-        """The arena's forces and constraints for the coming step (none on a track)."""
-
     # ------------------------------------------------------------------ exact snapshots
     def episode_state(self) -> dict:
         """The per-episode world: the terrain profile."""

@@ -154,7 +154,8 @@ class BatchedEnvs:
         """(obs, rewards, terminated, truncated, infos list); no reset of finished sub-envs."""
         a = self.check_actions(actions)
         if self.vectorised:
-            self.task.servo(a, self._caps, self.physics.controls)
+            played = self.task.before_physics(self.physics, a, self.rows)
+            self.task.servo(played, self._caps, self.physics.controls)
             self._step_physics()
             obs, rewards, terminated, unstable = self.task.step(self.physics, a, self.rows)
             success = self.envs[0].successes(self.rows).tolist()

@@ -94,6 +94,10 @@ class PhysicsState:
             view = self._fields[name] = getattr(self.data, name)[None]
         return view
 
+    def row_data(self, i: int) -> mujoco.MjData:
+        """The one env's MjData (the backend interface's per-simulation access)."""
+        return self.data
+
     @property
     def step_start(self) -> np.ndarray:
         """The integration state the last step started from (read-only view)."""

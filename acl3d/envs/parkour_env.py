@@ -129,8 +129,7 @@ class ParkourComposition:
         return ParkourTask(
             arena.bound,
             ParkourLidar(self._lidar, arena),
-            arena.water,
-            arena.climbing,
+            arena,
             arena.generator.end_x,
             self.end_on_death,
         )

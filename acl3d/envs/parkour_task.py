@@ -17,15 +17,12 @@ the ceiling (creepers never collide).
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
 from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
-from acl3d.envs.climbing import Climbing
 from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
-from acl3d.envs.track_task import FAIL_REWARD, TrackTask, torque_use
-from acl3d.envs.water import Water
+from acl3d.envs.track_task import FAIL_REWARD, EpisodeRows, TrackTask, torque_use
 
 SURVIVAL_STEPS = 600
 SURVIVAL_KEYS = ("steps_under_water", "steps_out_of_water", "dead", "under_water")
@@ -42,7 +39,9 @@ class ParkourLidar:
     hold), creepers are boxes (static or swinging segments), the water is a horizontal plane seen
     from above only (the original does not see its surface from inside). Casting on these
     shapes in numpy gives the distances `mj_multiRay` gives (tested) several times faster on
-    the two 240-column heightfields.
+    the two 240-column heightfields, and for N envs at once (`read_rows`): element by element
+    the same arithmetic whatever N (only exact reductions: min and max), so each row is
+    bit-identical to the env cast alone.
     """
 
     def __init__(self, kind: str, arena, nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE):
@@ -52,65 +51,107 @@ class ParkourLidar:
         angles = a * np.arange(nb_rays) / nb_rays + b
         self.kind, self.nb_rays, self.range = kind, nb_rays, ray_range
         self.directions = np.stack([np.sin(angles), np.zeros(nb_rays), -np.cos(angles)], axis=1)
-        self._dx, self._dz = self.directions[:, 0].copy(), self.directions[:, 2].copy()
+        self._dx = self.directions[:, 0].copy()[None, :, None]  # (1, rays, 1): rows x segments
+        self._dz = self.directions[:, 2].copy()[None, :, None]
         # how far back and ahead along x the rays reach
-        self._reach_back = self.range * min(0.0, self._dx.min())
-        self._reach_ahead = self.range * max(0.0, self._dx.max())
+        self._reach_back = self.range * min(0.0, self.directions[:, 0].min())
+        self._reach_ahead = self.range * max(0.0, self.directions[:, 0].max())
         self.arena = arena
-        self._grid_x = arena.grid.x
+        grid = self._grid = arena.grid
+        # columns a window of reach can span (the int() truncations add up to 2)
+        width = int((self._reach_ahead - self._reach_back) / grid.cell) + 3
+        self._window = np.arange(min(width, grid.ncol))
         with np.errstate(divide="ignore"):  # distance per metre of height to the water plane
-            self._inv_down = np.where(self._dz < 0.0, -1.0 / self._dz, np.inf)
-        self.flags = np.zeros(self.nb_rays)
+            self._inv_down = np.where(
+                self.directions[:, 2] < 0.0, -1.0 / self.directions[:, 2], np.inf
+            )
 
     def read(self, model, data, origin) -> np.ndarray:
-        """Fractions in [0, 1] (1 = nothing within range); `self.flags` holds the surface types."""
-        x0, z0 = float(origin[0]), float(origin[2])
-        best = np.full(self.nb_rays, self.range)
+        """Fractions in [0, 1] (1 = nothing within range) for this env's arena alone."""
         arena = self.arena
-        grid = arena.grid
-        i0 = max(0, int((x0 + self._reach_back - grid.x_min) / grid.cell))
-        i1 = min(grid.ncol - 1, int((x0 + self._reach_ahead - grid.x_min) / grid.cell) + 1)
-        xs = self._grid_x[i0 : i1 + 1]
-        ground, ceiling = arena.heights[i0 : i1 + 1], arena.ceiling_heights[i0 : i1 + 1]
-        if ground.max() >= z0 - self.range:  # skip profiles out of reach
-            np.minimum(best, self._profile_hits(xs, ground, x0, z0), out=best)
-        if ceiling.min() <= z0 + self.range:
-            np.minimum(best, self._profile_hits(xs, ceiling, x0, z0), out=best)
-        flags = self.flags
-        flags[:] = 0.0
-        creepers = self._creeper_hits(model, data, origin)
-        if creepers is not None:
-            on_creeper = creepers < best
-            best[on_creeper] = creepers[on_creeper]
-            flags[on_creeper] = CREEPER_FLAG
-        height = z0 - arena.water.level
-        if height > 0.0:  # rays from under water do not see its surface
-            water = height * self._inv_down  # inf for rays that do not go down
+        fractions, _ = self._cast(
+            arena.heights[None],
+            arena.ceiling_heights[None],
+            np.array([arena.water.level]),
+            np.asarray(origin, dtype=np.float64)[None],
+            [(0, arena, data)],
+        )
+        return fractions[0]
+
+    def read_rows(self, physics, rows, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(fractions (N, rays) in [0, 1], surface flags (N, rays)) for the N envs of `rows`,
+        rays from `origins` (N, 3); creepers are read from each env's row of `physics`."""
+        creepers = [
+            (i, arena, physics.row_data(i))
+            for i, arena in enumerate(rows.arenas)
+            if arena.nb_creeper_geoms
+        ]
+        return self._cast(rows.ground, rows.ceiling, rows.water_level, origins, creepers)
+
+    def _cast(self, ground, ceiling, water_level, origins, creepers):
+        x0, z0 = origins[:, 0], origins[:, 2]
+        best = np.minimum(self.range, self._surface_hits(ground, ceiling, x0, z0))
+        flags = np.zeros_like(best)
+        for i, arena, data in creepers:
+            hits = self._creeper_hits(arena, data, origins[i])
+            if hits is not None:
+                on_creeper = hits < best[i]
+                best[i, on_creeper] = hits[on_creeper]
+                flags[i, on_creeper] = CREEPER_FLAG
+        height = z0 - water_level
+        above = height > 0.0  # rays from under water do not see its surface
+        if above.any():
+            with np.errstate(invalid="ignore"):  # 0 * inf where a ray does not go down
+                water = np.where(above[:, None], height[:, None] * self._inv_down, np.inf)
             on_water = water < best
             best[on_water] = water[on_water]
             flags[on_water] = WATER_FLAG
         miss = best >= self.range
         flags[miss] = 0.0
-        return np.where(miss, 1.0, best / self.range)
+        return np.where(miss, 1.0, best / self.range), flags
 
-    def _profile_hits(self, xs, zs, x0, z0) -> np.ndarray:
-        """Distance along each ray to the first crossing of the polyline (xs, zs); inf if none."""
-        ex, ez = self.arena.grid.cell, np.diff(zs)
-        rx, rz = xs[:-1] - x0, zs[:-1] - z0
-        dx, dz = self._dx[:, None], self._dz[:, None]
+    def _surface_hits(self, ground, ceiling, x0, z0) -> np.ndarray:
+        """(N, rays) distance to the first crossing of each env's ground or ceiling polyline
+        within the columns its rays can reach (inf: none); a surface wholly out of reach is
+        skipped, as for one env."""
+        grid, n = self._grid, len(x0)
+        i0 = np.maximum(0, ((x0 + self._reach_back - grid.x_min) / grid.cell).astype(np.int64))
+        i1 = ((x0 + self._reach_ahead - grid.x_min) / grid.cell).astype(np.int64) + 1
+        np.minimum(i1, grid.ncol - 1, out=i1)
+        cols = i0[:, None] + self._window
+        inside = cols <= i1[:, None]  # (N, W): the window's columns
+        np.minimum(cols, grid.ncol - 1, out=cols)
+        xs = grid.x[cols]
+        env = np.arange(n)[:, None]
+        zg, zc = ground[env, cols], ceiling[env, cols]
+        ground_near = np.where(inside, zg, -np.inf).max(axis=1) >= z0 - self.range
+        ceiling_near = np.where(inside, zc, np.inf).min(axis=1) <= z0 + self.range
+        segments = inside[:, 1:]
+        hits = np.full((n, self.nb_rays), np.inf)
+        for zs, near in ((zg, ground_near), (zc, ceiling_near)):
+            if near.any():
+                found = self._polyline_hits(xs, zs, x0, z0, segments)
+                np.minimum(hits, np.where(near[:, None], found, np.inf), out=hits)
+        return hits
+
+    def _polyline_hits(self, xs, zs, x0, z0, segments) -> np.ndarray:
+        """(N, rays) distance along each ray to the first crossing of the polylines (xs, zs)
+        (N, W) on their valid `segments` (N, W - 1); inf if none."""
+        ex, ez = self._grid.cell, (zs[:, 1:] - zs[:, :-1])[:, None, :]
+        rx, rz = (xs[:, :-1] - x0[:, None])[:, None, :], (zs[:, :-1] - z0[:, None])[:, None, :]
+        dx, dz = self._dx, self._dz
         denom = dx * ez - dz * ex  # d x e
         safe = np.where(denom == 0.0, 1.0, denom)
         t = (rx * ez - rz * ex) / safe  # (r x e) / (d x e)
         u = (rx * dz - rz * dx) / safe  # (r x d) / (d x e)
-        valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0)
-        return np.where(valid, t, np.inf).min(axis=1)
+        valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0) & segments[:, None, :]
+        return np.where(valid, t, np.inf).min(axis=2)
 
-    def _creeper_hits(self, model, data, origin) -> np.ndarray | None:
-        """Distance along each ray to the nearest creeper box entered from outside (inf: none);
-        None when no creeper is within reach."""
-        geoms = self.arena.creeper_geoms[: self.arena.nb_creeper_geoms]
-        if not len(geoms):
-            return None
+    def _creeper_hits(self, arena, data, origin) -> np.ndarray | None:
+        """Distance along each ray to the nearest creeper box of this env entered from outside
+        (inf: none); None when no creeper is within reach."""
+        model = arena.model
+        geoms = arena.creeper_geoms[: arena.nb_creeper_geoms]
         offsets = data.geom_xpos[geoms] - origin
         reach = self.range + model.geom_rbound[geoms]
         near = np.einsum("ij,ij->i", offsets, offsets) <= reach * reach
@@ -131,7 +172,10 @@ class ParkourLidar:
 
 
 class ParkourTask(TrackTask):
-    """Track task + water, survival counters, grasping and the Parkour observation layout."""
+    """Track task + water, survival counters, grasping and the Parkour observation layout, for
+    N envs at once like the track task: each env's survival counters, terrain (ground, ceiling,
+    water level) and arena (its water forces, grasps and creepers) are its row of the
+    `EpisodeRows`; a batch of Parkour envs steps as one."""
 
     # what the water forces, the grasps and the creeper rays read or write, too
     physics_fields = (
@@ -139,19 +183,19 @@ class ParkourTask(TrackTask):
         *("geom_xpos", "geom_xmat", "subtree_com", "xipos", "xaxis", "xanchor", "xquat"),
         *("qfrc_actuator", "xfrc_applied", "eq_active"),
     )
+    steps_in_batch = True
 
     def __init__(
         self,
         bound: BoundBody,
         lidar: ParkourLidar,
-        water: Water,
-        climbing: Climbing | None,
+        arena,
         end_x: float,
         end_on_death: bool = False,
         survival_steps: int = SURVIVAL_STEPS,
     ):
-        self.water = water
-        self.climbing = climbing
+        self.arena = arena  # this env's: its terrain goes to its row at each reset
+        self.climber = arena.climbing is not None
         super().__init__(bound, lidar, end_x)
         body = bound.body
         self.kind = body.kind
@@ -162,30 +206,57 @@ class ParkourTask(TrackTask):
         self._critical_ceiling = self._sensor_adr(bound.model, critical, against="ceiling")
         self.end_on_death = end_on_death
         self.survival_steps = survival_steps
-        self.steps_under_water = 0
-        self.steps_out_of_water = 0
-        self.dead = False
-        self.under_water = False
-        self._zero_action = np.zeros(body.action_size)
+        self._water_geoms = arena.water.geoms  # the same body geoms in every env's model
+        self._water_reach = bound.model.geom_rbound[self._water_geoms]
 
     def extra_obs_size(self) -> int:
         return 2 + self.lidar.nb_rays  # under_water and dead flags, surface flags
 
-    def grasp_state(self) -> np.ndarray:
-        """Climbers' [touching, holding] per hand (`Climbing.state`); empty for other bodies."""
-        return self.climbing.state() if self.climbing else np.zeros(0)
+    def new_rows(self, n: int) -> EpisodeRows:
+        rows = super().new_rows(n)
+        ncol = self.arena.grid.ncol
+        rows.ground, rows.ceiling = np.zeros((n, ncol)), np.zeros((n, ncol))
+        rows.water_level = np.full(n, -np.inf)
+        rows.arenas = np.empty(n, dtype=object)
+        rows.steps_under_water = np.zeros(n, dtype=np.int64)
+        rows.steps_out_of_water = np.zeros(n, dtype=np.int64)
+        rows.dead = np.zeros(n, dtype=bool)
+        rows.under_water = np.zeros(n, dtype=bool)
+        return rows
+
+    def take_terrain(self, rows: EpisodeRows, i: int = 0) -> None:
+        arena = self.arena
+        rows.ground[i], rows.ceiling[i] = arena.heights, arena.ceiling_heights
+        rows.water_level[i] = arena.water.level
+        rows.arenas[i] = arena
 
     # ------------------------------------------------------------------ survival
-    def begin_episode(self) -> None:
-        self.steps_under_water = self.steps_out_of_water = 0
-        self.dead = False
+    def begin_episode(self, rows: EpisodeRows) -> None:
+        rows.steps_under_water[:] = rows.steps_out_of_water[:] = 0
+        rows.dead[:] = False
 
-    def played(self, action: np.ndarray) -> np.ndarray:
-        """Dead bodies play zeros."""
-        return self._zero_action if self.dead else action
+    def before_physics(self, physics, actions: np.ndarray, rows: EpisodeRows) -> np.ndarray:
+        """Dead bodies play zeros; then each env's arena releases grasps and applies the water
+        forces (envs whose body neither reaches nor left the water have none to apply)."""
+        if rows.dead.any():
+            actions = np.where(rows.dead[:, None], 0.0, actions)
+        if self.climber:
+            envs = range(len(actions))
+        else:
+            bottoms = physics.field("geom_xpos")[:, self._water_geoms, 2] - self._water_reach
+            wet = [arena.water.wet for arena in rows.arenas]
+            envs = np.flatnonzero((bottoms.min(axis=1) < rows.water_level) | wet)
+        for i in envs:
+            rows.arenas[i].before_step(physics.row_data(i), actions[i])
+        return actions
 
-    def episode_state(self) -> dict:
-        return {f"survival/{key}": getattr(self, key) for key in SURVIVAL_KEYS}
+    def episode_state(self, rows: EpisodeRows) -> dict:
+        return {
+            "survival/steps_under_water": int(rows.steps_under_water[0]),
+            "survival/steps_out_of_water": int(rows.steps_out_of_water[0]),
+            "survival/dead": bool(rows.dead[0]),
+            "survival/under_water": bool(rows.under_water[0]),
+        }
 
     def check_episode_state(self, state) -> dict:
         env_state.check_keys(state, [f"survival/{key}" for key in SURVIVAL_KEYS])
@@ -196,51 +267,51 @@ class ParkourTask(TrackTask):
             for key in SURVIVAL_KEYS
         }
 
-    def set_episode_state(self, checked: dict) -> None:
+    def set_episode_state(self, checked: dict, rows: EpisodeRows) -> None:
         for key in SURVIVAL_KEYS:
-            setattr(self, key, checked[key])
+            getattr(rows, key)[0] = checked[key]
 
-    def _update_survival(self, data: mujoco.MjData) -> bool:
-        """Count consecutive steps in/out of water; return True if the body died this step."""
-        self.under_water = bool(data.xpos[self.bound.root_id, 2] <= self.water.level)
-        if self.dead:
-            return False
-        if self.under_water:
-            self.steps_under_water += 1
-            self.steps_out_of_water = 0
-        else:
-            self.steps_out_of_water += 1
-            self.steps_under_water = 0
+    def _update_survival(self, physics, rows: EpisodeRows) -> np.ndarray:
+        """Count consecutive steps in/out of water; (N,) flags: the body died this step."""
+        under = physics.field("xpos")[:, self.bound.root_id, 2] <= rows.water_level
+        rows.under_water[:] = under
+        alive = ~rows.dead
+        below, above = rows.steps_under_water, rows.steps_out_of_water
+        below[:] = np.where(alive, np.where(under, below + 1, 0), below)
+        above[:] = np.where(alive, np.where(under, 0, above + 1), above)
         if self.kind in ("walker", "climber"):
-            self.dead = self.steps_under_water > self.survival_steps
+            died = alive & (below > self.survival_steps)
         elif self.kind == "swimmer":
-            self.dead = self.steps_out_of_water > self.survival_steps
-        return self.dead
+            died = alive & (above > self.survival_steps)
+        else:
+            died = np.zeros_like(alive)
+        rows.dead |= died
+        return died
 
     # ------------------------------------------------------------------ observation
-    # Parkour's rules run per env (N = 1): water, creepers and grasps read the env's MjData.
     def observe(self, physics, rows) -> tuple[np.ndarray, np.ndarray]:
-        data = physics.data
-        obs = np.zeros((1, self.obs_size))
+        obs = np.zeros((len(rows.dead), self.obs_size))
         col = self.head_size
         x = self.head(physics, obs[:, :col])
-        obs[0, col : col + 2] = (float(self.under_water), float(self.dead))
+        obs[:, col] = rows.under_water
+        obs[:, col + 1] = rows.dead
         col += 2
         self.motor_state(physics, obs[:, col : col + self._motor_size])
         col += self._motor_size
-        grasp = self.grasp_state()
-        obs[0, col : col + len(grasp)] = grasp
-        col += len(grasp)
-        obs[0, col : col + self.lidar.nb_rays] = self.lidar.read(
-            physics.model, data, data.xpos[self.bound.root_id]
-        )
-        obs[0, col + self.lidar.nb_rays :] = self.lidar.flags
+        if self.climber:
+            for i, arena in enumerate(rows.arenas):
+                obs[i, col : col + self.grasp_size] = arena.climbing.state()
+        col += self.grasp_size
+        origins = physics.field("xpos")[:, self.bound.root_id]
+        fractions, flags = self.lidar.read_rows(physics, rows, origins)
+        obs[:, col : col + self.lidar.nb_rays] = fractions
+        obs[:, col + self.lidar.nb_rays :] = flags
         return x, obs
 
     def reset_rows(self, physics, rows) -> np.ndarray:
-        self.begin_episode()
-        root_z = physics.data.xpos[self.bound.root_id, 2]
-        self.under_water = bool(root_z <= self.water.level)
+        self.begin_episode(rows)
+        root_z = physics.field("xpos")[:, self.bound.root_id, 2]
+        rows.under_water[:] = root_z <= rows.water_level
         return super().reset_rows(physics, rows)
 
     def critical_touch(self, physics) -> np.ndarray:
@@ -251,18 +322,20 @@ class ParkourTask(TrackTask):
         return np.logical_or.reduce(more, axis=1)
 
     def outcome(self, physics, actions: np.ndarray, rows):
-        data = physics.data
-        if self.climbing:
-            self.climbing.after_step(data)
-        alive = not self.dead  # a dead body plays zero actions, which cost nothing
-        died = self._update_survival(data)
+        if self.climber:
+            for i, arena in enumerate(rows.arenas):
+                arena.climbing.after_step(physics.row_data(i))
+        alive = ~rows.dead  # a dead body plays zero actions, which cost nothing
+        died = self._update_survival(physics, rows)
         x, obs = self.observe(physics, rows)
         shaping = self.shaping(x, obs[:, 0])
         reward = shaping - rows.prev_shaping
         rows.prev_shaping[:] = shaping
-        if alive:
-            reward -= self.body.torque_cost_per_unit * torque_use(actions)
+        cost = self.body.torque_cost_per_unit * torque_use(actions)
+        reward[alive] -= cost[alive]
         rows.critical_contact[:] = self.critical_touch(physics)
         fail = rows.critical_contact | (x < 0.0)
-        terminated = fail | (x > self.end_x) | (died and self.end_on_death)
+        terminated = fail | (x > self.end_x)
+        if self.end_on_death:
+            terminated |= died
         return obs, np.where(fail, FAIL_REWARD, reward), terminated

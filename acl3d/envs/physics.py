@@ -10,6 +10,8 @@ physics only through this interface, so the same code serves one env and a batch
 * `warnings`: (N, mjNWARNING) warning counts (MuJoCo resets a diverged simulation and counts it);
 * `models[i]`: simulation i's own compiled model, whose fields the envs write in place between
   steps (heightfields, servo force caps, weld anchors): every env compiles its own model;
+* `row_data(i)`: MjData-like access to simulation i alone, for the per-env rules that write
+  forces and constraints (Parkour's water and grasps: `xfrc_applied`, `eq_active`);
 * `step()`: `nstep` substeps of every simulation.
 
 Two backends implement it. `env_state.PhysicsState` is one env's MjData stepped by `mj_step`
@@ -59,6 +61,7 @@ class BatchPhysics:
         self.warnings = self.batch.warning[:, :, 1]  # mjWarningStat: (lastinfo, number)
         self._fields = {name: self.batch.bind(name) for name in fields}
         self.field_names = tuple(self._fields)
+        self._row_data: list[RowData | None] = [None] * self.n
 
     def field(self, name: str) -> np.ndarray:
         """Live (N, ...) array of an MjData field named in the constructor's `fields`."""
@@ -78,6 +81,13 @@ class BatchPhysics:
         mujoco.mj_getState(physics.model, physics.data, self.state[i], INTEGRATION)
         self.start[i] = physics.step_start
         self.warnings[i] = physics.data.warning.number
+
+    def row_data(self, i: int) -> RowData:
+        """Simulation i's fields as an MjData-like object (views of this batch's arrays)."""
+        data = self._row_data[i]
+        if data is None:
+            data = self._row_data[i] = RowData(self, i)
+        return data
 
     def row(self, i: int) -> RowPhysics:
         """Simulation i as a backend of one env (N = 1), views of this batch's arrays."""
@@ -119,7 +129,7 @@ class RowPhysics:
     def __init__(self, physics: BatchPhysics, i: int):
         self.model = physics.models[i]
         self.models = [self.model]
-        self.data = RowData(physics, i)
+        self.data = physics.row_data(i)
         self.controls = physics.controls[i : i + 1]
         self.warnings = physics.warnings[i : i + 1]
         self._fields = {name: physics.field(name)[i : i + 1] for name in physics.field_names}
@@ -127,3 +137,6 @@ class RowPhysics:
     def field(self, name: str) -> np.ndarray:
         """Live (1, ...) array of a bound MjData field."""
         return self._fields[name]
+
+    def row_data(self, i: int) -> RowData:
+        return self.data

@@ -273,7 +273,7 @@ class TrackEnv(gym.Env):
 
     def _episode_state(self) -> dict:
         """The per-episode world (the arena's) and the task's rule state."""
-        return {**self.arena.episode_state(), **self.task.episode_state()}
+        return {**self.arena.episode_state(), **self.task.episode_state(self.rows)}
 
     def _check_episode_state(self, state) -> dict:
         return {
@@ -284,7 +284,7 @@ class TrackEnv(gym.Env):
     def _set_episode_state(self, checked: dict) -> None:
         self.arena.set_episode_state(checked["arena"], self.data)
         self.task.take_terrain(self.rows)
-        self.task.set_episode_state(checked["task"])
+        self.task.set_episode_state(checked["task"], self.rows)
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -304,7 +304,7 @@ class TrackEnv(gym.Env):
             self._task_vector = task
         self.arena.regenerate(self.get_task(), self.np_random)
         self.task.take_terrain(self.rows)
-        self.task.begin_episode()
+        self.task.begin_episode(self.rows)
         mujoco.mj_resetData(self.model, self.data)
         self.arena.place_body(self.data, self.np_random)
         mujoco.mj_forward(self.model, self.data)
@@ -363,9 +363,8 @@ class TrackEnv(gym.Env):
         """Before `physics` (this env's own, or its row of a batch) steps: the task's servos
         (`TrackTask.servo`), after the task's rules (Parkour: dead bodies play zeros) and the
         arena's forces (Parkour: grasps released, water)."""
-        action = self.task.played(action)
-        self.arena.before_step(physics.data, action)
-        self.task.servo(action[None], self._caps, physics.controls)
+        played = self.task.before_physics(physics, action[None], self.rows)
+        self.task.servo(played, self._caps, physics.controls)
 
     def successes(self, rows) -> np.ndarray:
         """(N,) success flags of the episodes in `rows` (this env's or a batch's): a return

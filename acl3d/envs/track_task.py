@@ -71,7 +71,7 @@ class EpisodeRows:
 
     def row(self, i: int) -> EpisodeRows:
         """Env i's row as an `EpisodeRows` of one whose arrays are views of these."""
-        out = EpisodeRows.__new__(EpisodeRows)
+        out = type(self).__new__(type(self))
         for name, value in vars(self).items():
             setattr(out, name, None if value is None else value[i : i + 1])
         return out
@@ -160,12 +160,13 @@ class TrackTask:
             cap[index] = r
         controls[:, index] = self.bound.speeds * np.sign(motors)
 
-    def begin_episode(self) -> None:
-        """Clear per-env episode rules before the body is placed (a track task has none)."""
+    def begin_episode(self, rows: EpisodeRows) -> None:
+        """Clear the episode rules of `rows` before the body is placed (a track task has none)."""
 
-    def played(self, action: np.ndarray) -> np.ndarray:
-        """The action one env's body plays (on a track: the one given)."""
-        return action
+    def before_physics(self, physics, actions: np.ndarray, rows: EpisodeRows) -> np.ndarray:
+        """The arenas' forces for the coming step; returns the (N, action) actions the bodies
+        play (on a track: the ones given, and no forces)."""
+        return actions
 
     # ------------------------------------------------------------------ physics readings
     def touched(self, physics, sensors: np.ndarray) -> np.ndarray:
@@ -280,12 +281,12 @@ class TrackTask:
         return obs.astype(np.float32), reward, terminated | unstable, unstable
 
     # ------------------------------------------------------------------ exact snapshots
-    def episode_state(self) -> dict:
-        """Per-env rule state beyond the rows (none on a track)."""
+    def episode_state(self, rows: EpisodeRows) -> dict:
+        """One env's rule state beyond the shared rows' fields (none on a track)."""
         return {}
 
     def check_episode_state(self, state) -> dict:
         return {}
 
-    def set_episode_state(self, checked: dict) -> None:
+    def set_episode_state(self, checked: dict, rows: EpisodeRows) -> None:
         """Restore what `check_episode_state` returned."""
