@@ -7,12 +7,13 @@ and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded
 Resets go through the sub-env's own `reset`.
 
 The physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs' own models,
-one call per step on its own C threads). Tracks and 3D Terrain (sensors that read heights rows):
-the task's step (`TrackTask.step`: observation, reward, termination, sensors, servo caps) runs
-once on (N, ...) arrays, and each sub-env's running episode is its row of the batch's
-`EpisodeRows` (the sub-env holds a view of it). Parkour (water, creepers, grasps) and ray-cast
-lidars: each sub-env's own rules run before and after the batch step on its row of the batch
-(`RowPhysics`), one after the other. Between steps the batch rows hold the physics; `sync(i)`
+one call per step on its own C threads). Tracks, 3D Terrain and Parkour: the task's step
+(`TrackTask.step`: observation, reward, termination, sensors, servo caps; Parkour's survival and
+lidar) runs once on (N, ...) arrays, and each sub-env's running episode is its row of the
+batch's `EpisodeRows` (the sub-env holds a view of it); Parkour's water forces and grasps run for
+the envs that need them on their row of the batch. Ray-cast lidars (MuJoCo's rays): each
+sub-env's own rules run before and after the batch step on its row (`RowPhysics`), one after the
+other. Between steps the batch rows hold the physics; `sync(i)`
 writes row i into sub-env i's own MjData before anything reads it (snapshots, rendering),
 `restored(i)` takes a sub-env's MjData back after it was reset or set.
 The time limit is the registered one (TimeLimit semantics: truncated once 2000 steps are played).
@@ -86,8 +87,8 @@ class BatchedEnvs:
         )
         self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
         self.task = e.task  # every sub-env's task computes the same: on tracks one steps them all
-        # tracks and 3D Terrain (sensors reading heights rows): one array step; Parkour (water,
-        # creepers, grasps) and ray-cast lidars: each sub-env's own rules on its row of the batch
+        # tracks, 3D Terrain and Parkour: one array step; ray-cast lidars: each sub-env's own
+        # rules on its row of the batch
         self.vectorised = e.task.steps_in_batch
         if self.vectorised:
             self.rows = self.task.new_rows(num_envs)

@@ -134,7 +134,7 @@ class TrackTask:
     @property
     def steps_in_batch(self) -> bool:
         """N envs of this task step as one batch when its sensor reads rows of heights (the
-        batched env steps the others, Parkour's or a ray-cast lidar's, one env at a time)."""
+        batched env steps a ray-cast lidar's one env at a time); Parkour's always do."""
         return hasattr(self.lidar, "batch_heights")
 
     def new_rows(self, n: int) -> EpisodeRows:
