@@ -2,8 +2,8 @@
 
 Teachers never name environments. Each environment declares a `CurriculumProfile` next to its
 task space (`env.unwrapped.curriculum_profile`), and the training loop hands it to the
-`TeacherController`, which reads the reward bounds, the ADR thresholds, the expert-knowledge
-initial distribution and the test sets from it. An environment without a profile gets
+`TeacherController`, which reads the reward bounds, the success return, the ADR thresholds,
+the expert-knowledge initial distribution and the test sets from it. An environment without a profile gets
 `CurriculumProfile()`: generic bounds, no prior, uniform test sets.
 
 This module sits next to `acl3d.task_space` (below terrain, teachers and envs) so that both the
@@ -44,7 +44,8 @@ class CurriculumProfile:
         name: the environment's short name, recorded in teacher dumps (None: unnamed).
         reward_bounds: returns are mapped linearly from these bounds to [0, 1] (and clamped)
             when the controller scales rewards.
-        success_return: an episode succeeds when its return is above this (TeachMyAgent's 230).
+        success_return: an episode succeeds when its return is above this (TeachMyAgent's 230);
+            also the mean return that moves the Oracle's window on.
         adr_reward_thresholds: the returns below / above which ADR shrinks / expands its box.
         initial_dist: the easy-task Gaussian given to teachers at expert knowledge "high".
         test_sets: named test sets ("walking", ...), selectable with `test_set="walking"`.

@@ -164,6 +164,31 @@ def test_adr_thresholds_follow_reward_scaling():
     assert (c.teacher.min_reward_thr, c.teacher.max_reward_thr) == (0.0, 180.0)
 
 
+def test_adr_and_oracle_thresholds_come_from_the_profile_unless_the_run_sets_them():
+    from acl3d.training import TrainConfig
+    from acl3d.training.session import build_controller
+
+    other = CurriculumProfile(
+        reward_bounds=(-50.0, 150.0), success_return=120.0, adr_reward_thresholds=(10.0, 90.0)
+    )
+
+    def thresholds(teacher, profile, **options):
+        config = TrainConfig.from_dict({"teacher": teacher, "out": "unused", **options})
+        t = build_controller(config, STUMPS, profile).teacher
+        return (t.min_reward_thr, t.max_reward_thr) if teacher == "adr" else t.reward_thr
+
+    assert thresholds("adr", other) == (10.0, 90.0)
+    assert thresholds("oracle", other) == 120.0
+    assert thresholds("adr", None) == CurriculumProfile().adr_reward_thresholds
+    assert thresholds("oracle", None) == CurriculumProfile().success_return
+    # the run's explicit values win over the profile, and are scaled with the returns
+    assert thresholds("oracle", other, teacher_params={"reward_thr": 40.0}) == 40.0
+    explicit = {"min_reward_thr": 0.0, "max_reward_thr": 50.0}
+    assert thresholds("adr", other, teacher_params=explicit) == (0.0, 50.0)
+    assert thresholds("oracle", other, scale_reward=True) == pytest.approx(0.85)
+    assert thresholds("adr", other, scale_reward=True) == pytest.approx((0.3, 0.7))
+
+
 @pytest.mark.parametrize(
     "bad",
     [

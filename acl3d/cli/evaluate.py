@@ -230,7 +230,7 @@ def run(args) -> int:
     s = result.summary()
     print(
         f"{t.model}: {s['n_tasks']} test episodes on {t.env} ({t.body}): "
-        f"{s['mastered_pct']:.1f}% mastered (return > 230), mean return {s['mean_return']:.1f} "
+        f"{s['mastered_pct']:.1f}% mastered (return > {result.success_return:g}), mean return {s['mean_return']:.1f} "
         f"+- {s['std_return']:.1f}, mean length {s['mean_length']:.0f}"
     )
     own = run_evaluation_at(t.run_dir, step) if t.run_dir is not None else None

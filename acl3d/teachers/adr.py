@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
+from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.teachers.base import RunFacts, Teacher
 
 MAX_PENDING = 4096  # boundary-sampled tasks awaiting their return (older ones are forgotten)
@@ -52,8 +53,8 @@ class ADR(Teacher):
         step_size: float = 0.1,
         boundary_sampling_p: float = 0.7,
         queue_len: int = 10,
-        min_reward_thr: float = 0.0,
-        max_reward_thr: float = 180.0,
+        min_reward_thr: float = CurriculumProfile.adr_reward_thresholds[0],
+        max_reward_thr: float = CurriculumProfile.adr_reward_thresholds[1],
         initial_dist: dict | None = None,
     ):
         super().__init__(task_space, seed)

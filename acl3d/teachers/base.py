@@ -63,7 +63,7 @@ class Teacher(ABC):
         level whose episode must not train the student: Robust PLR, ACCEL).
       uses_initial_dist: the constructor takes `initial_dist` (expert knowledge "high").
       return_params: constructor parameters in return units, scaled with the returns when the
-        controller scales them (ADR's thresholds).
+        controller scales them (ADR's and the Oracle's thresholds).
     """
 
     name: ClassVar[str] = "abstract"

@@ -5,8 +5,9 @@ initial distribution only under "original", ALP-GMM only under "high", ADR/GoalG
 crash under "no"). acl3d separates two things:
 
 * Facts of the environment, given at every level: the binary success signal (return > 230 on
-  the shipped environments) and the reward thresholds ADR expands or shrinks its box with (0 and
-  180). A curriculum that cannot see whether an episode succeeded cannot run at all, so these are
+  the shipped tracks and Parkour), the mean return that moves the Oracle's window on (the same
+  success return) and the reward thresholds ADR expands or shrinks its box with (0 and 180). A
+  curriculum that cannot see whether an episode succeeded cannot run at all, so these are
   not "expert knowledge".
 * Expert knowledge proper, the *initial distribution* (where the easy tasks are), given only at
   level "high", to every teacher that can use one:

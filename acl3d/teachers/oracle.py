@@ -4,7 +4,8 @@ Tasks are drawn uniformly in a window of width `window_ratio` x range per dimens
 `step_rate` episodes, if the mean return of those episodes exceeds `reward_thr`, the window moves
 by `window_step_vector` (task units, clamped so it stays inside the bounds). A positive step
 starts the window at the lower bound, a negative one at the upper bound. The expert knowledge is
-in the step vector: its signs say where the easy tasks are.
+in the step vector: its signs say where the easy tasks are. In a training run `reward_thr` is the
+environment's success return (its `CurriculumProfile`) unless the run sets it.
 """
 
 from __future__ import annotations
@@ -14,13 +15,21 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
-from acl3d.teachers.base import Teacher
+from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.teachers.base import RunFacts, Teacher
 
 
 class Oracle(Teacher):
     """teachDeepRL's sliding-window oracle; default step: +range/30 in every dimension."""
 
     name = "oracle"
+    return_params = ("reward_thr",)
+
+    @classmethod
+    def run_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """The window moves on when its episodes succeed on average: the environment's
+        success return."""
+        return {"reward_thr": facts.profile.success_return, **super().run_params(facts)}
 
     def __init__(
         self,
@@ -29,7 +38,7 @@ class Oracle(Teacher):
         *,
         window_step_vector=None,
         step_rate: int = 50,
-        reward_thr: float = 230.0,
+        reward_thr: float = CurriculumProfile.success_return,
         window_ratio: float = 1 / 6,
     ):
         super().__init__(task_space, seed)

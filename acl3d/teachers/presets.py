@@ -2,7 +2,9 @@
 
 `BENCHMARK` equals the class defaults (the TeachMyAgent paper runs, §1.4 of the reference);
 `TEACHDEEPRL` holds the teachDeepRL (CoRL 2019) values, used for the toy-environment comparison.
-A teacher missing from a preset uses its class defaults.
+A teacher missing from a preset uses its class defaults. Facts of the environment (ADR's reward
+thresholds, the Oracle's success threshold) are not hyper-parameters and are in no preset: a
+training run takes them from the environment's `CurriculumProfile` (`Teacher.run_params`).
 """
 
 from __future__ import annotations
@@ -30,10 +32,8 @@ BENCHMARK: dict[str, dict[str, Any]] = {
         "step_size": 0.1,
         "boundary_sampling_p": 0.7,
         "queue_len": 10,
-        "min_reward_thr": 0.0,
-        "max_reward_thr": 180.0,
     },
-    "oracle": {"step_rate": 50, "reward_thr": 230.0},
+    "oracle": {"step_rate": 50},
 }
 
 TEACHDEEPRL: dict[str, dict[str, Any]] = {
@@ -53,7 +53,7 @@ TEACHDEEPRL: dict[str, dict[str, Any]] = {
         "min_dims_range_ratio": 1 / 15,
         "discard_ratio": 0.25,
     },
-    "oracle": {"step_rate": 50, "reward_thr": 230.0},
+    "oracle": {"step_rate": 50},
 }
 
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {"benchmark": BENCHMARK, "teachdeeprl": TEACHDEEPRL}

@@ -1,4 +1,5 @@
-"""Evaluation on a fixed test set: % mastered (return > 230) and mean return (TeachMyAgent §4.2).
+"""Evaluation on a fixed test set: % mastered (return above the env's success return) and mean
+return (TeachMyAgent §4.2).
 
 The test tasks are spread over the worker envs of an evaluation VecEnv (each worker plays the
 next unplayed test task at its auto-reset), so evaluation runs in parallel and never touches
