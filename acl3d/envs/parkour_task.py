@@ -57,6 +57,7 @@ class ParkourLidar:
         self._reach_back = self.range * min(0.0, self.directions[:, 0].min())
         self._reach_ahead = self.range * max(0.0, self.directions[:, 0].max())
         self.arena = arena
+        self._pool = arena.creeper_geoms  # the same geom ids in every env's model
         grid = self._grid = arena.grid
         # columns a window of reach can span (the int() truncations add up to 2)
         width = int((self._reach_ahead - self._reach_back) / grid.cell) + 3
@@ -69,35 +70,37 @@ class ParkourLidar:
     def read(self, model, data, origin) -> np.ndarray:
         """Fractions in [0, 1] (1 = nothing within range) for this env's arena alone."""
         arena = self.arena
+        count, size, rbound = creeper_boxes(arena)
         fractions, _ = self._cast(
             arena.heights[None],
             arena.ceiling_heights[None],
             np.array([arena.water.level]),
             np.asarray(origin, dtype=np.float64)[None],
-            [(0, arena, data)],
+            (data.geom_xpos[None], data.geom_xmat[None], count[None], size[None], rbound[None]),
         )
         return fractions[0]
 
     def read_rows(self, physics, rows, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(fractions (N, rays) in [0, 1], surface flags (N, rays)) for the N envs of `rows`,
-        rays from `origins` (N, 3); creepers are read from each env's row of `physics`."""
-        creepers = [
-            (i, arena, physics.row_data(i))
-            for i, arena in enumerate(rows.arenas)
-            if arena.nb_creeper_geoms
-        ]
+        rays from `origins` (N, 3)."""
+        creepers = (
+            physics.field("geom_xpos"),
+            physics.field("geom_xmat"),
+            rows.creeper_count,
+            rows.creeper_size,
+            rows.creeper_rbound,
+        )
         return self._cast(rows.ground, rows.ceiling, rows.water_level, origins, creepers)
 
     def _cast(self, ground, ceiling, water_level, origins, creepers):
         x0, z0 = origins[:, 0], origins[:, 2]
         best = np.minimum(self.range, self._surface_hits(ground, ceiling, x0, z0))
         flags = np.zeros_like(best)
-        for i, arena, data in creepers:
-            hits = self._creeper_hits(arena, data, origins[i])
-            if hits is not None:
-                on_creeper = hits < best[i]
-                best[i, on_creeper] = hits[on_creeper]
-                flags[i, on_creeper] = CREEPER_FLAG
+        hits = self._creeper_hits(origins, *creepers)
+        if hits is not None:
+            on_creeper = hits < best
+            best[on_creeper] = hits[on_creeper]
+            flags[on_creeper] = CREEPER_FLAG
         height = z0 - water_level
         above = height > 0.0  # rays from under water do not see its surface
         if above.any():
@@ -147,19 +150,25 @@ class ParkourLidar:
         valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0) & segments[:, None, :]
         return np.where(valid, t, np.inf).min(axis=2)
 
-    def _creeper_hits(self, arena, data, origin) -> np.ndarray | None:
-        """Distance along each ray to the nearest creeper box of this env entered from outside
-        (inf: none); None when no creeper is within reach."""
-        model = arena.model
-        geoms = arena.creeper_geoms[: arena.nb_creeper_geoms]
-        offsets = data.geom_xpos[geoms] - origin
-        reach = self.range + model.geom_rbound[geoms]
-        near = np.einsum("ij,ij->i", offsets, offsets) <= reach * reach
+    def _creeper_hits(self, origins, xpos, xmat, count, size, rbound) -> np.ndarray | None:
+        """(N, rays) distance along each ray to the nearest creeper box of its env entered from
+        outside (inf: none); None when no env has a creeper within reach. xpos, xmat: the
+        envs' (N, ngeom, ...) geom poses; count, size, rbound: their creeper boxes in use
+        (`creeper_boxes`)."""
+        if not count.any():
+            return None
+        used = int(count.max())
+        pool = self._pool[:used]
+        offsets = xpos[:, pool] - origins[:, None]  # (N, P, 3)
+        reach = self.range + rbound[:, :used]
+        near = np.einsum("npj,npj->np", offsets, offsets) <= reach * reach
+        near &= np.arange(used) < count[:, None]
         if not near.any():
             return None
-        geoms, offsets = geoms[near], offsets[near]
-        rot = data.geom_xmat[geoms].reshape(-1, 3, 3)
-        size = model.geom_size[geoms]
+        env, box = np.nonzero(near)
+        offsets = offsets[env, box]
+        rot = xmat[env, pool[box]].reshape(-1, 3, 3)
+        size = size[env, box]
         o_local = -np.einsum("nkj,nk->nj", rot, offsets)  # R^T (o - c)
         d_local = np.einsum("nkj,rk->rnj", rot, self.directions)
         d_local[np.abs(d_local) < 1e-12] = 1e-12
@@ -168,7 +177,19 @@ class ParkourLidar:
         t_in = np.minimum(t1, t2).max(axis=-1)
         t_out = np.maximum(t1, t2).min(axis=-1)
         hit = (t_in <= t_out) & (t_in > 0.0)
-        return np.where(hit, t_in, np.inf).min(axis=1)
+        out = np.full((self.nb_rays, len(origins)), np.inf)
+        np.minimum.at(out, (slice(None), env), np.where(hit, t_in, np.inf))
+        return out.T
+
+
+def creeper_boxes(arena) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(number in use, half sizes (P, 3), bounding radii (P,)) of an arena's creeper geoms this
+    episode (the pool's first ones), padded to the pool's size P."""
+    pool = arena.creeper_geoms
+    count, model = arena.nb_creeper_geoms, arena.model
+    size, rbound = np.zeros((len(pool), 3)), np.zeros(len(pool))
+    size[:count], rbound[:count] = model.geom_size[pool[:count]], model.geom_rbound[pool[:count]]
+    return np.array(count), size, rbound
 
 
 class ParkourTask(TrackTask):
@@ -218,6 +239,9 @@ class ParkourTask(TrackTask):
         rows.ground, rows.ceiling = np.zeros((n, ncol)), np.zeros((n, ncol))
         rows.water_level = np.full(n, -np.inf)
         rows.arenas = np.empty(n, dtype=object)
+        pool = len(self.arena.creeper_geoms)
+        rows.creeper_count = np.zeros(n, dtype=np.int64)
+        rows.creeper_size, rows.creeper_rbound = np.zeros((n, pool, 3)), np.zeros((n, pool))
         rows.steps_under_water = np.zeros(n, dtype=np.int64)
         rows.steps_out_of_water = np.zeros(n, dtype=np.int64)
         rows.dead = np.zeros(n, dtype=bool)
@@ -229,6 +253,7 @@ class ParkourTask(TrackTask):
         rows.ground[i], rows.ceiling[i] = arena.heights, arena.ceiling_heights
         rows.water_level[i] = arena.water.level
         rows.arenas[i] = arena
+        rows.creeper_count[i], rows.creeper_size[i], rows.creeper_rbound[i] = creeper_boxes(arena)
 
     # ------------------------------------------------------------------ survival
     def begin_episode(self, rows: EpisodeRows) -> None:
