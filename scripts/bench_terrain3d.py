@@ -59,7 +59,7 @@ def reset_ms(env, resets: int, rng: np.random.Generator) -> float:
 def scan_seconds(env, reads: int) -> float:
     """Seconds per height scan of the env's current state (one env: a batch of one)."""
     u = env.unwrapped
-    scan, root, heights = u.task.lidar, u.bound.root_id, u.rows.heights
+    scan, root, heights = u.rules.lidar, u.bound.root_id, u.rows.heights
     origins, rotations = u.data.xpos[root][None], u.data.xmat[root][None]
     t0 = time.process_time()
     for _ in range(reads):

@@ -81,7 +81,7 @@ def describe(name: str, rate_steps: int) -> dict:
         "type": body.kind,
         "dof": envs[True].model.nv - 3,  # joints of the body, planar root excluded
         "actions": body.action_size,
-        "obs": f"{envs[True].task.obs_size} / {envs[False].task.obs_size}",
+        "obs": f"{envs[True].rules.obs_size} / {envs[False].rules.obs_size}",
         "torque": torque,
         "default": "planar" if body.planar_default else "3D",
         "rate": f"{steps_per_second(name, True, rate_steps):,.0f} / "

@@ -8,7 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from acl3d.bodies import ALIASES, BODIES, body_class, make_body
-from acl3d.envs.track_task import FAIL_REWARD, TrackTask
+from acl3d.envs.track_rules import FAIL_REWARD, TrackRules
 
 # (actions, planar observation size): TeachMyAgent's Stump Tracks sizes for its bodies
 SIZES = {
@@ -252,11 +252,11 @@ def test_climbers_declare_non_colliding_hand_sensors_and_observe_grasp_state(nam
         assert geom.contype[0] == 0 and geom.conaffinity[0] == 0
         assert geom.size[0] == pytest.approx(0.05)
 
-    class Grasping(TrackTask):  # what Parkour does: report [contact, grasp] per hand
+    class Grasping(TrackRules):  # what Parkour does: report [contact, grasp] per hand
         def grasp_state(self):
             return np.array([1.0, 0.0, 1.0, 1.0])
 
-    env.task = Grasping(env.bound, env.task.lidar)
+    env.rules = Grasping(env.bound, env.rules.lidar)
     obs, _ = env.reset(seed=0)
     start = 4 + env.bound.motor_state_size
     assert np.array_equal(obs[start : start + 4], [1.0, 0.0, 1.0, 1.0])

@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d  # noqa: F401  (registers the environments)
-from acl3d.envs.parkour_task import CREEPER_FLAG, SURVIVAL_STEPS, WATER_FLAG
+from acl3d.envs.parkour_rules import CREEPER_FLAG, SURVIVAL_STEPS, WATER_FLAG
 from acl3d.envs.profiles import PARKOUR
 from acl3d.envs.water import Water
 from acl3d.teachers import test_sets
@@ -419,7 +419,7 @@ def test_analytic_lidar_matches_mujoco_ray_casting(movable):
     env = make(CLIMBER, movable_creepers=movable, lidars_type="full")
     task = {"creepers_height": 3.0, "creepers_spacing": 0.5, "input_vector": [-0.3, 1.0, 0.3]}
     env.reset(seed=0, options={"task": task})
-    lidar, rng = env.task.lidar, np.random.default_rng(0)
+    lidar, rng = env.rules.lidar, np.random.default_rng(0)
     checked = 0
     for x in np.linspace(2.0, 60.0, 40):
         z = rng.uniform(env.terrain.ground_at(x) + 0.3, env.terrain.ceiling_at(x) - 0.3)

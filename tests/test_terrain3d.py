@@ -14,7 +14,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import acl3d  # noqa: F401  (registers the ids)
 from acl3d.envs.env_state import get_env_state, set_env_state
 from acl3d.envs.height_scan import FORWARD, LATERAL
-from acl3d.envs.terrain3d_task import FAIL_REWARD
+from acl3d.envs.terrain3d_rules import FAIL_REWARD
 from acl3d.terrain import terrain3d_test_sets
 from acl3d.terrain.terrain3d import HEIGHT_RANGE, Terrain3DGenerator, terrain3d_task_space
 from tests.gl_support import require_offscreen_gl
@@ -158,7 +158,7 @@ def test_leaving_the_field_fails_and_crossing_the_line_succeeds():
     _, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape))
     assert (reward, terminated, info["success"]) == (FAIL_REWARD, True, False)
     env.reset(seed=0)
-    _teleport(env, x=env.task.end_x + 0.2)
+    _teleport(env, x=env.rules.end_x + 0.2)
     _, reward, terminated, _, info = env.step(np.zeros(env.action_space.shape))
     assert terminated and info["success"] and reward > 100  # the progress of the jump
 
@@ -183,7 +183,7 @@ def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
     env.reset(seed=0, options={"task": TASK})
     _teleport(env, x=12.0, y=-0.5)
     g, h = env.arena.grid, env.arena.heights
-    scan, root = env.task.lidar, env.bound.root_id
+    scan, root = env.rules.lidar, env.bound.root_id
     origin = env.data.xpos[root].copy()
     for yaw in (0.0, 0.7, np.pi / 2):  # turn the body: the grid turns with it
         q = env.bound.root_qpos
@@ -209,7 +209,7 @@ def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
 
 def test_height_scan_of_n_envs_is_bit_identical_to_each_alone():
     env = gym.make(ENV_ID).unwrapped
-    scan, root, heights, origins, rotations = env.task.lidar, env.bound.root_id, [], [], []
+    scan, root, heights, origins, rotations = env.rules.lidar, env.bound.root_id, [], [], []
     for seed in range(3):
         env.reset(seed=seed, options={"task": TASK})
         for _ in range(10 * seed + 5):

@@ -8,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d
-from acl3d.envs.track_task import FAIL_REWARD, PROGRESS_GAIN
+from acl3d.envs.track_rules import FAIL_REWARD, PROGRESS_GAIN
 
 
 def make(name="acl3d/StumpTracks-v0", **kw):
@@ -254,7 +254,7 @@ def test_lidar_matches_mujoco_ray_casting_and_ignores_the_body():
                 continue
             expected = reference.read(env.model, env.data, origin).copy()
             assert np.allclose(
-                env.task.lidar.read(env.model, env.data, origin), expected, atol=1e-5
+                env.rules.lidar.read(env.model, env.data, origin), expected, atol=1e-5
             )
     # the body is never seen: rays from inside the hull still reach the ground below
     obs, _ = env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})

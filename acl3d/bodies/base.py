@@ -1,4 +1,4 @@
-"""Bodies: an MJCF template per embodiment plus the Python description the track task needs.
+"""Bodies: an MJCF template per embodiment plus the Python description the tracks' rules need.
 
 A `Body` says which joints it drives (and how fast), its torque, its torque penalty, which of its
 geoms end the episode on contact, which report contact in the observation, and how high it

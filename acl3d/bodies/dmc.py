@@ -10,7 +10,7 @@ MjSpec and is adapted to acl3d's body conventions:
   torque capped at `max_torque_j * |a|`, where max_torque_j is the walker's own limit for that
   joint (dm_control's gear x ctrl limit, or its force range). The per-joint limit is the servo's
   gear and `Body.torque` is 1, so one torque cap per step serves joints of different strengths;
-- its sensors are dropped (the track task computes the observation).
+- its sensors are dropped (the tracks' rules compute the observation).
 The observation is acl3d's: head (root) state, every actuated joint's angle and velocity (its
 proprioception), foot contact flags, then the lidars.
 """

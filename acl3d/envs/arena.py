@@ -1,6 +1,7 @@
 """The arena: the MJCF track template, sized to the terrain grid, with a body attached at spawn.
 
-An env is composed of a body, an arena and a task (as in dm_control's locomotion): the arena owns
+An env is composed of a body, an arena and its rules (dm_control's locomotion calls them the
+task; in acl3d a task is the parameter vector a teacher picks): the arena owns
 the terrain generator and everything it writes per episode (`regenerate(task, rng)`), where the
 body starts (`place_body`) and the per-episode world state of exact snapshots.
 Topology (which body, which track kind) is fixed when the model is compiled; shape (terrain
@@ -16,7 +17,7 @@ import numpy as np
 from acl3d.assets import mjcf_path
 from acl3d.bodies.base import PREFIX, Body, BoundBody
 from acl3d.envs import env_state
-from acl3d.envs.track_task import touch_sensor_name
+from acl3d.envs.track_rules import touch_sensor_name
 from acl3d.terrain.tracks import (
     MAX_TERRAIN_HEIGHT,
     TERRAIN_STEP,
@@ -44,7 +45,7 @@ def resize_hfield(hfield: mujoco.MjsHField, ncol: int, size) -> None:
 
 def attach_body(spec: mujoco.MjSpec, body: Body, start_x: float, camera_distance: float) -> None:
     """Attach `body` at its spawn point (start_x, 0, spawn height) with a camera following it
-    and the touch sensors its task reads."""
+    and the touch sensors its rules read."""
     body_spec = body.spec()
     body_spec.body(body.root).add_camera(
         name="track",
@@ -58,7 +59,7 @@ def attach_body(spec: mujoco.MjSpec, body: Body, start_x: float, camera_distance
 
 
 def add_touch_sensors(spec: mujoco.MjSpec, body: Body, against: str | None = None) -> None:
-    """A contact sensor (number of contacts found) per geom whose contacts the task reads: the
+    """A contact sensor (number of contacts found) per geom whose contacts the rules read: the
     motors' contact-flag geoms and the critical geoms, touching anything; with `against` (a
     geom name), the critical geoms' contacts with that geom only (Parkour's ceiling). Sensors
     are part of every backend's derived fields (`sensordata`), where MjData's contact list is

@@ -2,13 +2,13 @@
 
 `BatchedEnvs` is the engine under the Gymnasium vector env (`acl3d.envs.batched_vector`) and
 the Stable-Baselines3 vec env (`acl3d.vec.batched_sb3`). Each sub-env is a full single env
-(`TrackEnv` / `ParkourEnv`, built by the id's own entry point) with its own model, terrain, task
+(`TrackEnv` / `ParkourEnv`, built by the id's own entry point) with its own model, terrain, rules
 and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded s + i plays.
 Resets go through the sub-env's own `reset`.
 
 The physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs' own models,
-one call per step on its own C threads). Tracks, 3D Terrain and Parkour: the task's step
-(`TrackTask.step`: observation, reward, termination, sensors, servo caps; Parkour's survival and
+one call per step on its own C threads). Tracks, 3D Terrain and Parkour: the rules' step
+(`TrackRules.step`: observation, reward, termination, sensors, servo caps; Parkour's survival and
 lidar) runs once on (N, ...) arrays, and each sub-env's running episode is its row of the
 batch's `EpisodeRows` (the sub-env holds a view of it); Parkour's water forces and grasps run for
 the envs that need them on their row of the batch. Ray-cast lidars (MuJoCo's rays): each
@@ -81,17 +81,17 @@ class BatchedEnvs:
         self.elapsed = np.zeros(num_envs, dtype=np.int64)
         self.threads = min(threads, num_envs)
         # every sub-env's physics is one batch (on its own threads), each on the sub-env's model
-        fields = e.task.physics_fields
+        fields = e.rules.physics_fields
         self.physics = BatchPhysics(
             [env.model for env in self.envs], e.frame_skip, self.threads, fields
         )
         self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
-        self.task = e.task  # every sub-env's task computes the same: on tracks one steps them all
+        self.rules = e.rules  # every sub-env's rules compute the same: one steps them all
         # tracks, 3D Terrain and Parkour: one array step; ray-cast lidars: each sub-env's own
         # rules on its row of the batch
-        self.vectorised = e.task.steps_in_batch
+        self.vectorised = e.rules.steps_in_batch
         if self.vectorised:
-            self.rows = self.task.new_rows(num_envs)
+            self.rows = self.rules.new_rows(num_envs)
             for i, env in enumerate(self.envs):
                 env.rows = self.rows.row(i)
             self._caps = [env.model.actuator_forcerange for env in self.envs]
@@ -155,10 +155,10 @@ class BatchedEnvs:
         """(obs, rewards, terminated, truncated, infos list); no reset of finished sub-envs."""
         a = self.check_actions(actions)
         if self.vectorised:
-            played = self.task.before_physics(self.physics, a, self.rows)
-            self.task.servo(played, self._caps, self.physics.controls)
+            played = self.rules.before_physics(self.physics, a, self.rows)
+            self.rules.servo(played, self._caps, self.physics.controls)
             self._step_physics()
-            obs, rewards, terminated, unstable = self.task.step(self.physics, a, self.rows)
+            obs, rewards, terminated, unstable = self.rules.step(self.physics, a, self.rows)
             success = self.envs[0].successes(self.rows).tolist()
             infos = [{"success": s} for s in success]
             for i in np.flatnonzero(unstable):

@@ -22,14 +22,14 @@ MIN_NORM = 1e-12  # below this the body's forward axis has no horizontal heading
 
 
 class HeightScan:
-    """Heights around a body's root on its arena's heightfield: a task's terrain sensor.
+    """Heights around a body's root on its arena's heightfield: the rules' terrain sensor.
 
     Args:
         arena: the body's arena; a 2D field (`heights` (rows, cols)) or a track (one profile
             `heights` (cols,), the same at every y).
         forward, lateral: the scan points' offsets in the heading frame (metres).
 
-    The task keeps each env's heights in a row of `batch_heights(n)` (a track's profile as two
+    The rules keep each env's heights in a row of `batch_heights(n)` (a track's profile as two
     equal rows) and `read_batch` gives the `nb_rays` readings of N envs (forward offsets varying
     fastest): terrain height - root height, in metres.
     """

@@ -3,7 +3,7 @@
 `gymnasium.make("acl3d/Parkour-v0", body=...)`. The env is the track core (`TrackEnv`)
 composed with Parkour's arena (`acl3d.envs.parkour_arena`: ground and ceiling heightfields,
 water, creepers, grasp welds; rewritten in place at every reset, so a new task never recompiles)
-and Parkour's task (`acl3d.envs.parkour_task`: survival rules, surface-typed lidars).
+and Parkour's rules (`acl3d.envs.parkour_rules`: survival, surface-typed lidars).
 
 Walkers start on the start pad, the fish 1 m higher with no push, climbers hang from the
 start-pad ceiling (placed with their highest hand at it, then 5 + 1 steps with the grasp actions
@@ -21,7 +21,7 @@ from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.climbing import Climbing
 from acl3d.envs.lidar import LIDAR_TYPES
 from acl3d.envs.parkour_arena import ParkourArena
-from acl3d.envs.parkour_task import DEFAULT_LIDARS, ParkourLidar, ParkourTask
+from acl3d.envs.parkour_rules import DEFAULT_LIDARS, ParkourLidar, ParkourRules
 from acl3d.envs.profiles import PARKOUR
 from acl3d.envs.track_env import TrackEnv
 from acl3d.envs.water import PUSH_CLIP, Water
@@ -101,7 +101,7 @@ class ParkourEnv(TrackEnv):
 
 
 class ParkourComposition:
-    """Parkour's arena (ground, ceiling, water, creepers) and task (survival, typed lidars)."""
+    """Parkour's arena (ground, ceiling, water, creepers) and rules (survival, typed lidars)."""
 
     track = "stump"  # what ParkourEnv's saved-state signature has always said
 
@@ -124,9 +124,9 @@ class ParkourComposition:
         generator = ParkourGenerator(start_pad_for(body.length))
         return ParkourArena(body, generator, self.movable_creepers, self.water_clip)
 
-    def build_task(self, arena: ParkourArena) -> ParkourTask:
+    def build_rules(self, arena: ParkourArena) -> ParkourRules:
         self._lidar = self.lidars_type or DEFAULT_LIDARS[arena.body.kind]
-        return ParkourTask(
+        return ParkourRules(
             arena.bound,
             ParkourLidar(self._lidar, arena),
             arena,

@@ -1,6 +1,6 @@
 """Physics backends: N MuJoCo simulations stepped together and read as (N, ...) arrays.
 
-The step arithmetic of the tracks (`acl3d.envs.track_task.TrackTask.step_rows`) touches the
+The step arithmetic of the tracks (`acl3d.envs.track_rules.TrackRules.step_rows`) touches the
 physics only through this interface, so the same code serves one env and a batch of them:
 
 * `controls`: (N, nu) actuator controls, written before `step()`;

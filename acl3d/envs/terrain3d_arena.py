@@ -2,7 +2,7 @@
 
 The heightfield's rows run across the field (y) and its columns along it (x); every episode's
 heights are written into the compiled model in place (`regenerate`), so a new task never
-recompiles. The field is `2 * FIELD_HALF_WIDTH` m wide: the task ends an episode whose body
+recompiles. The field is `2 * FIELD_HALF_WIDTH` m wide: the rules end an episode whose body
 leaves it, so no walls hold bodies in.
 """
 

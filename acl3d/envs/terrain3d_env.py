@@ -2,7 +2,7 @@
 
 `gymnasium.make("acl3d/Terrain3D-v0", body=...)`. The env is the track core (`TrackEnv`)
 composed with the field's arena (`acl3d.envs.terrain3d_arena`: one 2D heightfield, rewritten in
-place at every reset) and its task (`acl3d.envs.terrain3d_task`: progress, heading and drift,
+place at every reset) and its rules (`acl3d.envs.terrain3d_rules`: progress, heading and drift,
 leaving the field fails, crossing succeeds). The terrain and its task space are in
 `acl3d.terrain.terrain3d`; `docs/terrain3d.md` describes the family.
 """
@@ -17,7 +17,7 @@ from acl3d import validation
 from acl3d.bodies.base import Body
 from acl3d.envs.profiles import TERRAIN3D
 from acl3d.envs.terrain3d_arena import Terrain3DArena
-from acl3d.envs.terrain3d_task import Terrain3DTask, make_sensor
+from acl3d.envs.terrain3d_rules import Terrain3DRules, make_sensor
 from acl3d.envs.track_composition import OBSERVATIONS
 from acl3d.envs.track_env import TrackEnv
 from acl3d.terrain.terrain3d import (
@@ -71,7 +71,7 @@ class Terrain3DEnv(TrackEnv):
 
 
 class Terrain3DComposition:
-    """The field's arena (one 2D heightfield) and task (progress, heading, drift, crossing)."""
+    """The field's arena (one 2D heightfield) and rules (progress, heading, drift, crossing)."""
 
     track = "terrain3d"
 
@@ -92,9 +92,9 @@ class Terrain3DComposition:
     def build_arena(self, body: Body) -> Terrain3DArena:
         return Terrain3DArena(body, Terrain3DGenerator(start_pad_for(body.length)))
 
-    def build_task(self, arena: Terrain3DArena) -> Terrain3DTask:
+    def build_rules(self, arena: Terrain3DArena) -> Terrain3DRules:
         sensor = make_sensor(self.observation, arena)
-        return Terrain3DTask(arena.bound, sensor, arena.grid.half_width, arena.generator.end_x)
+        return Terrain3DRules(arena.bound, sensor, arena.grid.half_width, arena.generator.end_x)
 
     def signature(self) -> str:
         return f" observation={self.observation}"

@@ -1,7 +1,7 @@
-"""Stump and Hexagon Tracks as compositions: a track arena (one heightfield) and the track task.
+"""Stump and Hexagon Tracks as compositions: a track arena (one heightfield) and the tracks' rules.
 
 A composition is what tells envs apart: its task space and curriculum facts, which tasks its
-generator can build, and the arena and task it builds for a body (`TrackEnv` binds and steps
+generator can build, and the arena and rules it builds for a body (`TrackEnv` binds and steps
 them; Parkour's composition is in acl3d.envs.parkour_env).
 """
 
@@ -16,7 +16,7 @@ from acl3d.envs.arena import TrackArena
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import ProfileLidar
 from acl3d.envs.profiles import HEXAGON_TRACKS, STUMP_TRACKS
-from acl3d.envs.track_task import TrackTask
+from acl3d.envs.track_rules import TrackRules
 from acl3d.terrain.tracks import TrackGenerator, TrackGrid, check_buildable, track_task_space
 
 
@@ -36,10 +36,10 @@ TRACKS = {
 
 
 class TrackComposition:
-    """Stump or Hexagon Tracks: a `TrackArena` (one heightfield) and a `TrackTask`.
+    """Stump or Hexagon Tracks: a `TrackArena` (one heightfield) and a `TrackRules`.
 
     A composition is what tells envs apart: its task space and curriculum facts, which tasks its
-    generator can build, and the arena and task it builds for a body.
+    generator can build, and the arena and rules it builds for a body.
     """
 
     def __init__(
@@ -58,10 +58,10 @@ class TrackComposition:
     def build_arena(self, body: Body) -> TrackArena:
         return TrackArena(body, TrackGenerator(TrackGrid()))
 
-    def build_task(self, arena: TrackArena) -> TrackTask:
+    def build_rules(self, arena: TrackArena) -> TrackRules:
         if self.observation == "height_scan":
-            return TrackTask(arena.bound, HeightScan(arena))
-        return TrackTask(arena.bound, ProfileLidar(arena, "down"))
+            return TrackRules(arena.bound, HeightScan(arena))
+        return TrackRules(arena.bound, ProfileLidar(arena, "down"))
 
     def signature(self) -> str:
         """What a saved state must match beyond the body and model sizes (the sensor, if not

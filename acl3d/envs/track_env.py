@@ -1,9 +1,10 @@
 """Stump Tracks and Hexagon Tracks as Gymnasium environments (one class, two track kinds).
 
 Composition, as in dm_control locomotion: a body (acl3d.bodies), an arena (acl3d.envs.arena: the
-terrain generator and what it writes) and a task (TrackTask), bound together in one compiled
-model. A composition (`acl3d.envs.track_composition`; Parkour's in acl3d.envs.parkour_env) builds
-the arena and the task for a body; `TrackEnv` is the core that binds and steps them.
+terrain generator and what it writes) and the rules (TrackRules: observation, reward,
+termination), bound together in one compiled model. A composition
+(`acl3d.envs.track_composition`; Parkour's in acl3d.envs.parkour_env) builds the arena and the
+rules for a body; `TrackEnv` is the core that binds and steps them.
 The task (track parameters) can change at every reset without recompiling: the new profile is
 written into the heightfield in place. Per-episode randomness comes from `self.np_random`.
 """
@@ -33,6 +34,7 @@ _STATE_KEYS = (  # get_state()'s own keys (the RNG, physics and terrain parts ch
     "episode_return",
     "instability_warnings",
     "rng_seed",
+    # the rules' running numbers, under their original names: earlier checkpoints still resume
     "task/prev_shaping",
     "task/critical_contact",
 )
@@ -122,7 +124,7 @@ class TrackEnv(gym.Env):
         raise validation.fail("body", body, "a body name or an acl3d.bodies.Body")
 
     def _compose(self, composition, body: Body, frame_skip, render_mode, render_args) -> None:
-        """Bind body x arena x task (from `composition`) into one compiled model."""
+        """Bind body x arena x rules (from `composition`) into one compiled model."""
         self.body = body
         self.composition = composition
         self.track = composition.track
@@ -142,14 +144,14 @@ class TrackEnv(gym.Env):
             raise validation.fail("camera", camera, f"None or one of {cameras}")
         self.data = mujoco.MjData(self.model)
         self.physics = env_state.PhysicsState(self.model, self.data, frame_skip)
-        self.task = composition.build_task(self.arena)
-        self.rows = self.task.new_rows(1)  # this episode's running numbers (see EpisodeRows)
+        self.rules = composition.build_rules(self.arena)
+        self.rows = self.rules.new_rows(1)  # this episode's running numbers (see EpisodeRows)
 
         self.action_space = gym.spaces.Box(
             -1.0, 1.0, shape=(self.body.action_size,), dtype=np.float32
         )
         self.observation_space = gym.spaces.Box(
-            -np.inf, np.inf, shape=(self.task.obs_size,), dtype=np.float32
+            -np.inf, np.inf, shape=(self.rules.obs_size,), dtype=np.float32
         )
         self._caps = [self.model.actuator_forcerange]
         self._task_vector = self.task_space.to_vector({})
@@ -272,19 +274,19 @@ class TrackEnv(gym.Env):
         )
 
     def _episode_state(self) -> dict:
-        """The per-episode world (the arena's) and the task's rule state."""
-        return {**self.arena.episode_state(), **self.task.episode_state(self.rows)}
+        """The per-episode world (the arena's) and the rules' episode state."""
+        return {**self.arena.episode_state(), **self.rules.episode_state(self.rows)}
 
     def _check_episode_state(self, state) -> dict:
         return {
             "arena": self.arena.check_episode_state(state),
-            "task": self.task.check_episode_state(state),
+            "rules": self.rules.check_episode_state(state),
         }
 
     def _set_episode_state(self, checked: dict) -> None:
         self.arena.set_episode_state(checked["arena"], self.data)
-        self.task.take_terrain(self.rows)
-        self.task.set_episode_state(checked["task"], self.rows)
+        self.rules.take_terrain(self.rows)
+        self.rules.set_episode_state(checked["rules"], self.rows)
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -303,15 +305,15 @@ class TrackEnv(gym.Env):
         if task is not None:
             self._task_vector = task
         self.arena.regenerate(self.get_task(), self.np_random)
-        self.task.take_terrain(self.rows)
-        self.task.begin_episode(self.rows)
+        self.rules.take_terrain(self.rows)
+        self.rules.begin_episode(self.rows)
         mujoco.mj_resetData(self.model, self.data)
         self.arena.place_body(self.data, self.np_random)
         mujoco.mj_forward(self.model, self.data)
         # the original returns the obs after one idle step
         self._control_step(np.zeros(self.body.action_size))
         self.arena.settle(self.data, self._control_step)  # Parkour's climbers grasp
-        obs = self.task.reset_rows(self.physics, self.rows)[0]
+        obs = self.rules.reset_rows(self.physics, self.rows)[0]
         if self.render_mode == "human":
             self.render()
         return obs, self._info(False)
@@ -327,7 +329,7 @@ class TrackEnv(gym.Env):
     def after_physics(self, action: np.ndarray, physics):
         """The step's (obs, reward, terminated, truncated, info) once `physics` (this env's own,
         or its row of a batch) stepped."""
-        obs, reward, terminated, unstable = self.task.step(physics, action[None], self.rows)
+        obs, reward, terminated, unstable = self.rules.step(physics, action[None], self.rows)
         return obs[0], float(reward[0]), bool(terminated[0]), False, self._info(unstable[0])
 
     def render(self):
@@ -360,11 +362,11 @@ class TrackEnv(gym.Env):
         self.physics.step()
 
     def act(self, action: np.ndarray, physics) -> None:
-        """Before `physics` (this env's own, or its row of a batch) steps: the task's servos
-        (`TrackTask.servo`), after the task's rules (Parkour: dead bodies play zeros) and the
+        """Before `physics` (this env's own, or its row of a batch) steps: the rules' servos
+        (`TrackRules.servo`), after their `before_physics` (Parkour: dead bodies play zeros) and the
         arena's forces (Parkour: grasps released, water)."""
-        played = self.task.before_physics(physics, action[None], self.rows)
-        self.task.servo(played, self._caps, physics.controls)
+        played = self.rules.before_physics(physics, action[None], self.rows)
+        self.rules.servo(played, self._caps, physics.controls)
 
     def successes(self, rows) -> np.ndarray:
         """(N,) success flags of the episodes in `rows` (this env's or a batch's): a return

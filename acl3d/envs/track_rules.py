@@ -1,4 +1,7 @@
-"""The track task: observation, reward, termination and success, for N envs at once.
+"""The tracks' rules: observation, reward, termination and success, for N envs at once.
+
+An env's *rules* (dm_control calls this object its task; acl3d keeps "task" for the parameter
+vector a teacher picks) turn the physics into what the agent sees and is paid.
 
 Follows TeachMyAgent §2.1: shaping = 130/30 * x_head - 5 * |angle| (angle term dropped for bodies
 without it), step reward = shaping difference - torque cost; a critical contact or going behind
@@ -16,10 +19,10 @@ bit-identical to the same env stepped alone.
 The interface an env's step uses: `obs_size`, `physics_fields`, `new_rows(n)`,
 `servo(actions, caps, controls)`, `reset_rows(physics, rows)` (first observation),
 `step(physics, actions, rows)`, `take_terrain(rows, i)`, and the per-env `begin_episode`,
-`played`, `episode_state` / `check_episode_state` / `set_episode_state`. A new task overrides
-the hooks it needs: `observe` (its observation layout), `sense` (its terrain sensor),
-`potential` (its shaping), `outcome` (its rules: reward and termination), as Parkour's and
-3D Terrain's tasks do.
+`played`, `episode_state` / `check_episode_state` / `set_episode_state`. New rules override
+the hooks they need: `observe` (the observation layout), `sense` (the terrain sensor),
+`potential` (the shaping), `outcome` (reward and termination), as Parkour's and 3D Terrain's
+rules do.
 """
 
 from __future__ import annotations
@@ -77,7 +80,7 @@ class EpisodeRows:
         return out
 
 
-class TrackTask:
+class TrackRules:
     """Observation, reward and termination of envs of one bound body (see the module docstring)."""
 
     # the MjData fields the step reads through `physics.field`
@@ -128,17 +131,17 @@ class TrackTask:
         return np.zeros(self.grasp_size)
 
     def extra_obs_size(self) -> int:
-        """Hook for tasks that add observation entries after the lidars (Parkour's surface flags)."""
+        """Hook for rules that add observation entries after the lidars (Parkour's surface flags)."""
         return 0
 
     @property
     def steps_in_batch(self) -> bool:
-        """N envs of this task step as one batch when its sensor reads rows of heights (the
+        """N envs under these rules step as one batch when its sensor reads rows of heights (the
         batched env steps a ray-cast lidar's one env at a time); Parkour's always do."""
         return hasattr(self.lidar, "batch_heights")
 
     def new_rows(self, n: int) -> EpisodeRows:
-        """Running-episode rows for n envs of this task."""
+        """Running-episode rows for n envs under these rules."""
         heights = self.lidar.batch_heights(n) if hasattr(self.lidar, "batch_heights") else None
         return EpisodeRows(n, heights)
 
@@ -161,7 +164,7 @@ class TrackTask:
         controls[:, index] = self.bound.speeds * np.sign(motors)
 
     def begin_episode(self, rows: EpisodeRows) -> None:
-        """Clear the episode rules of `rows` before the body is placed (a track task has none)."""
+        """Clear the episode rules of `rows` before the body is placed (the tracks' have none)."""
 
     def before_physics(self, physics, actions: np.ndarray, rows: EpisodeRows) -> np.ndarray:
         """The arenas' forces for the coming step; returns the (N, action) actions the bodies
@@ -255,7 +258,7 @@ class TrackTask:
         return obs.astype(np.float32)
 
     def outcome(self, physics, actions: np.ndarray, rows: EpisodeRows):
-        """The task's rules after physics: (obs (N, obs) float64, reward (N,), terminated (N,))."""
+        """The outcome after physics: (obs (N, obs) float64, reward (N,), terminated (N,))."""
         x, obs = self.observe(physics, rows)
         shaping = self.potential(physics, x, obs)
         reward = shaping - rows.prev_shaping

@@ -1,6 +1,6 @@
-"""The Parkour task: water and death flags, grasp state, surface-typed lidars, survival rules.
+"""Parkour's rules: water and death flags, grasp state, surface-typed lidars, survival.
 
-Extends the track task (§2.4.4-2.4.7 of the reference). Observation, in order:
+Extends the tracks' rules (§2.4.4-2.4.7 of the reference). Observation, in order:
 [head (4, or 9 for free 3D bodies), under_water, dead] + motor state + [climbers: per hand
 touching, holding] + 10 lidar fractions + 10 surface flags (water -1, creeper +1, else 0).
 Unlike the original, a flag is reset to 0 when its ray hits nothing (the original keeps it stale).
@@ -22,7 +22,7 @@ import numpy as np
 from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
 from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
-from acl3d.envs.track_task import FAIL_REWARD, EpisodeRows, TrackTask, torque_use
+from acl3d.envs.track_rules import FAIL_REWARD, EpisodeRows, TrackRules, torque_use
 
 SURVIVAL_STEPS = 600
 SURVIVAL_KEYS = ("steps_under_water", "steps_out_of_water", "dead", "under_water")
@@ -192,15 +192,15 @@ def creeper_boxes(arena) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.array(count), size, rbound
 
 
-class ParkourTask(TrackTask):
-    """Track task + water, survival counters, grasping and the Parkour observation layout, for
-    N envs at once like the track task: each env's survival counters, terrain (ground, ceiling,
+class ParkourRules(TrackRules):
+    """The tracks' rules + water, survival counters, grasping and the Parkour observation layout,
+    for N envs at once like the tracks': each env's survival counters, terrain (ground, ceiling,
     water level) and arena (its water forces, grasps and creepers) are its row of the
     `EpisodeRows`; a batch of Parkour envs steps as one."""
 
     # what the water forces, the grasps and the creeper rays read or write, too
     physics_fields = (
-        *TrackTask.physics_fields,
+        *TrackRules.physics_fields,
         *("geom_xpos", "geom_xmat", "subtree_com", "xipos", "xaxis", "xanchor", "xquat"),
         *("qfrc_actuator", "xfrc_applied", "eq_active"),
     )

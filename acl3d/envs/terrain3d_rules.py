@@ -1,4 +1,4 @@
-"""3D Terrain's task: forward progress, heading and lateral drift, crossing the finish line.
+"""3D Terrain's rules: forward progress, heading and lateral drift, crossing the finish line.
 
 The tracks' rules, widened to a body that can turn and drift:
 
@@ -21,11 +21,11 @@ import numpy as np
 from acl3d.bodies.base import BoundBody
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import Lidar
-from acl3d.envs.track_task import (
+from acl3d.envs.track_rules import (
     ANGLE_PENALTY,
     FAIL_REWARD,
     EpisodeRows,
-    TrackTask,
+    TrackRules,
     torque_use,
 )
 
@@ -48,7 +48,7 @@ def outcome(x, y, critical, end_x: float, half_width: float):
     return failed, (x > end_x) & np.logical_not(failed)
 
 
-class Terrain3DTask(TrackTask):
+class Terrain3DRules(TrackRules):
     """Observation, reward and termination of N envs of one body on the 3D field.
 
     Its rows add `crossed`, the flag of the last step (the success of an episode that ended
