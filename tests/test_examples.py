@@ -38,6 +38,42 @@ def test_cleanrl_ppo_trains_on_the_batched_env_with_alp_gmm(tmp_path):
     assert (tmp_path / "agent.pt").stat().st_size > 0
 
 
+def test_cleanrl_ppo_normalises_as_sb3_vecnormalize():
+    """The example's normalisation on Gymnasium's NEXT_STEP autoreset gives what SB3's
+    VecNormalize gives `acl3d train` on the same episodes: rewards, observation and return
+    statistics, with falls (terminations) and time limits among the episodes."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from acl3d.envs.batched_vector import BatchedVectorEnv
+    from acl3d.vec.batched_sb3 import BatchedVecEnv
+
+    env_id = "acl3d/StumpTracks-v0"
+    ours = example("cleanrl_ppo").VecNormalize(
+        BatchedVectorEnv(env_id, 1, max_episode_steps=60), 0.99
+    )
+    sb3 = VecNormalize(
+        BatchedVecEnv(env_id, 1, max_episode_steps=60), clip_obs=10.0, clip_reward=10.0, gamma=0.99
+    )
+    sb3.seed(0)
+    assert np.allclose(ours.reset(seed=0)[0], sb3.reset(), atol=1e-6)
+    rng = np.random.default_rng(0)
+    ends = {"terminated": 0, "truncated": 0}
+    for _ in range(400):
+        action = rng.uniform(-1, 1, (1, 4))
+        obs_sb3, reward_sb3, _, _ = sb3.step(action)
+        _, reward, terminated, truncated, _ = ours.step(action)
+        assert np.isclose(reward[0], reward_sb3[0], rtol=1e-5, atol=1e-7)
+        if terminated[0] or truncated[0]:
+            ends["terminated" if terminated[0] else "truncated"] += 1
+            obs, reward, *_ = ours.step(action)  # NEXT_STEP's reset step: what SB3 returned
+            assert reward[0] == 0.0 and np.allclose(obs, obs_sb3, atol=1e-5)
+    assert min(ends.values()) >= 1, ends
+    assert np.allclose(ours.obs_rms.mean, sb3.obs_rms.mean) and np.allclose(
+        ours.obs_rms.var, sb3.obs_rms.var
+    )
+    assert ours.obs_rms.count == sb3.obs_rms.count and np.isclose(ours.ret_rms.var, sb3.ret_rms.var)
+
+
 def test_syllabus_curriculum_drives_the_batched_env():
     pytest.importorskip("syllabus")
     out = example("syllabus_curriculum").main(

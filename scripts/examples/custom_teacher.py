@@ -2,6 +2,8 @@
 
     python scripts/examples/custom_teacher.py --steps 20000 --out runs/my_teacher
 
+Needs `pip install "acl3d[train]"` (Stable-Baselines3 and torch, for `acl3d train`).
+
 `EasyFirst` proposes uniform tasks, but only among the easiest `fraction` of each dimension
 until the student's recent episodes succeed often enough; then the fraction grows. It declares
 what it needs on the class (nothing beyond returns and success here; see `Teacher`'s docstring

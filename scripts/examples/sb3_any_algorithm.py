@@ -4,6 +4,8 @@ command line.
 
     python scripts/examples/sb3_any_algorithm.py --steps 50000 --out runs/any_sb3
 
+Needs `pip install "acl3d[train]"` (Stable-Baselines3 and torch).
+
 The preset sets only the network (`fast`: 64-64); every other hyperparameter is the algorithm's
 own default unless given (`student_params` / `--student-param`, checked against the
 algorithm's constructor). `action_noise_std` gives TD3 / DDPG Gaussian exploration noise. The

@@ -1,7 +1,8 @@
-"""A Syllabus curriculum (syllabus-rl 0.7, `pip install "acl3d[syllabus]"`) choosing the tasks of
-acl3d's batched vector env.
+"""A Syllabus curriculum (syllabus-rl 0.7) choosing the tasks of acl3d's batched vector env.
 
     python scripts/examples/syllabus_curriculum.py --steps 20000
+
+Needs `pip install "acl3d[syllabus]"` (syllabus-rl 0.7; `[train]` alone does not have it).
 
 Syllabus describes a continuous task space with `BoxTaskSpace(gym.spaces.Box)`: acl3d's
 `task_space.gym_space` is that Box. `SyllabusTaskSource` is the batched env's per-sub-env task
