@@ -3,6 +3,7 @@ env (all envs in this process) vs the one-env-per-process path, and vs Gymnasium
 
     python scripts/bench_training.py                    # ~2-4 min: ppo + sac
     python scripts/bench_training.py --students ppo --batched-envs 16 32 --teacher random
+    python scripts/bench_training.py --update-threads 1 2   # PPO's update alone per torch threads
 
 Every cell is `model.learn()` steps per wall-clock second after a warm-up (PPO: whole rollouts;
 SAC: past learning_starts, so gradient steps are included), with the `fast` preset for that
@@ -91,6 +92,25 @@ def measure(kind, student, n_envs, steps, teacher, preset="fast"):
         env.close()
 
 
+def update_seconds(thread_counts, n_envs: int, rounds: int) -> dict[int, float]:
+    """PPO `fast`'s update (`model.train()`: 10 epochs over one rollout) in wall seconds, per
+    torch thread count (best of interleaved rounds), on a rollout the batched env collected."""
+    env = build_env("batched", n_envs, "random", 0, "ppo")
+    params = students.hyperparameters("ppo", "fast", n_envs)
+    model = students.build("ppo", params, env, seed=0)
+    model.learn(params["n_steps"] * n_envs)  # one rollout (and one update)
+    best = {t: float("inf") for t in thread_counts}
+    for _ in range(rounds):
+        for t in thread_counts:
+            torch.set_num_threads(t)
+            start = time.perf_counter()
+            model.train()
+            best[t] = min(best[t], time.perf_counter() - start)
+    torch.set_num_threads(1)
+    env.close()
+    return best
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--students", nargs="+", default=["ppo", "sac"], choices=students.STUDENTS)
@@ -103,8 +123,22 @@ def main() -> None:
     p.add_argument("--sac-steps", type=int, default=3000, help="timed SAC steps")
     p.add_argument("--repeats", type=int, default=1, help="best of N measurements per cell")
     p.add_argument("--preset", default="fast", choices=students.PRESETS, help="student preset")
+    p.add_argument(
+        "--update-threads",
+        nargs="+",
+        type=int,
+        help="instead: time PPO's update alone with these torch thread counts",
+    )
     args = p.parse_args()
     torch.set_num_threads(1)
+    if args.update_threads:
+        n = args.batched_envs[0]
+        best = update_seconds(args.update_threads, n, max(3, args.repeats))
+        print(f"PPO 'fast' update of one {n}-env rollout, wall seconds (best of rounds):")
+        for t, seconds in best.items():
+            ratio = best[args.update_threads[0]] / seconds
+            print(f"  torch threads {t}: {seconds:.3f} s ({ratio:.2f}x)")
+        return
 
     rows = []
     for student in args.students:
