@@ -6,6 +6,12 @@
 Each round times `env.step` (classic biped, Stump Tracks h=1 sp=3, seeded random actions) and
 `env.reset` with a new task in a fresh subprocess per checkout, alternating old and new so that
 machine drift hits both alike; prints the medians and new/old ratios (> 1: the new one is faster).
+
+    python scripts/bench_compare.py /tmp/acl3d-old --training ppo --rounds 2 --steps 131072
+
+`--training ppo|sac` times, instead, a whole `acl3d.training.train()` run in each checkout (ALP-GMM,
+the student's `fast` preset, default envs, the final evaluation included): steps over the run's
+own wall time (the last `wall_time_s` of its evals.csv).
 """
 
 from __future__ import annotations
@@ -43,10 +49,25 @@ print(json.dumps({"file": acl3d.__file__, "steps_per_s": step_rate, "reset_ms": 
 """
 
 
-def measure(tree: Path, steps: int) -> dict:
+TRAIN_PROBE = r"""
+import csv, json, sys, tempfile
+import acl3d
+from acl3d.training import train
+student, steps = sys.argv[1], int(sys.argv[2])
+with tempfile.TemporaryDirectory() as tmp:
+    train(teacher="alp-gmm", student=student, preset="fast", steps=steps, out=tmp + "/run",
+          seed=0, progress_bar=False, verbose=0)
+    rows = list(csv.DictReader(open(tmp + "/run/evals.csv")))
+wall = float(rows[-1]["wall_time_s"])
+print(json.dumps({"file": acl3d.__file__, "steps_per_s": int(rows[-1]["step"]) / wall}))
+"""
+
+
+def measure(tree: Path, steps: int, student: str | None = None) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
+    args = [PROBE, str(steps)] if student is None else [TRAIN_PROBE, student, str(steps)]
     out = subprocess.run(
-        [sys.executable, "-c", PROBE, str(steps)],
+        [sys.executable, "-c", *args],
         env=env,
         cwd=tree,
         capture_output=True,
@@ -64,12 +85,15 @@ def main() -> int:
     parser.add_argument("old", type=Path, help="the other checkout (its root folder)")
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--steps", type=int, default=20_000)
+    parser.add_argument(
+        "--training", choices=["ppo", "sac"], help="time a training run instead of the env"
+    )
     args = parser.parse_args()
     runs = {"old": [], "new": []}
     for _ in range(args.rounds):
-        runs["old"].append(measure(args.old.resolve(), args.steps))
-        runs["new"].append(measure(ROOT, args.steps))
-    for key in ("steps_per_s", "reset_ms"):
+        runs["old"].append(measure(args.old.resolve(), args.steps, args.training))
+        runs["new"].append(measure(ROOT, args.steps, args.training))
+    for key in ("steps_per_s",) if args.training else ("steps_per_s", "reset_ms"):
         old = statistics.median(r[key] for r in runs["old"])
         new = statistics.median(r[key] for r in runs["new"])
         ratio = new / old if key == "steps_per_s" else old / new
