@@ -52,13 +52,13 @@ def test_cppn_has_the_original_architecture_and_frozen_seeded_weights():
     assert not np.allclose(out, cppn([-0.15, 0.8, 0.2]))
 
 
-def test_profiles_follow_the_original_offsets_and_scale():
+def test_height_lines_follow_the_original_offsets_and_scale():
     gen = ParkourGenerator(start_pad=20)
-    ground, ceiling = gen.profiles([-0.15, 0.8, 0.1], 10.0)
+    ground, ceiling = gen.height_lines([-0.15, 0.8, 0.1], 10.0)
     assert len(ground) == 220 and np.all(ground[:21] == 0.0)  # pad, then the first CPPN point
     assert np.all(ceiling[:21] == pytest.approx(20.0))  # 200 / scale above the start pad
     assert np.all(ceiling >= ground)
-    g20, c20 = gen.profiles([-0.15, 0.8, 0.1], 20.0)
+    g20, c20 = gen.height_lines([-0.15, 0.8, 0.1], 20.0)
     assert np.allclose(g20, ground / 2) and c20[0] == pytest.approx(10.0)
     assert gen.end_x == pytest.approx(215 * TERRAIN_STEP)
 

@@ -223,7 +223,7 @@ def test_height_scan_of_n_envs_is_bit_identical_to_each_alone():
         np.testing.assert_array_equal(batch[i], alone[0])
 
 
-def test_height_scan_on_stump_tracks_reads_the_profile_at_every_lateral_offset():
+def test_height_scan_on_stump_tracks_reads_the_height_line_at_every_lateral_offset():
     env = gym.make("acl3d/StumpTracks-v0", observation="height_scan").unwrapped
     obs, _ = env.reset(seed=0, options={"task": {"stump_height": 2.0, "obstacle_spacing": 1.0}})
     assert obs.shape == (4 + 10 + SCAN,)

@@ -1,4 +1,4 @@
-"""Stump and hexagon terrain profiles (pure numpy): geometry, units, randomness, bad input."""
+"""Stump and hexagon height lines (pure numpy): geometry, units, randomness, bad input."""
 
 import numpy as np
 import pytest
@@ -23,7 +23,7 @@ def rising_edges(gen, heights):
 
 
 def test_stumps_follow_original_units(gen):
-    heights = gen.profile({"stump_height": 2.0, "obstacle_spacing": 3.0}, np.random.default_rng(0))
+    heights = gen.heights({"stump_height": 2.0, "obstacle_spacing": 3.0}, np.random.default_rng(0))
     x = gen.x
     # start pad is flat, first stump starts where the pad ends
     assert np.all(heights[x < START_PAD * TERRAIN_STEP - 1e-6] == 0)
@@ -34,22 +34,22 @@ def test_stumps_follow_original_units(gen):
 
 
 def test_negative_heights_give_the_minimum_stump(gen):
-    heights = gen.profile({"stump_height": -3.0, "obstacle_spacing": 3.0}, np.random.default_rng(0))
+    heights = gen.heights({"stump_height": -3.0, "obstacle_spacing": 3.0}, np.random.default_rng(0))
     assert heights.max() == pytest.approx(0.05 * TERRAIN_STEP)
 
 
 def test_same_generator_seed_same_terrain_other_seed_differs(gen):
     task = {"stump_height": 1.5, "obstacle_spacing": 2.0}
-    a = gen.profile(task, np.random.default_rng(3))
-    b = gen.profile(task, np.random.default_rng(3))
-    c = gen.profile(task, np.random.default_rng(4))
+    a = gen.heights(task, np.random.default_rng(3))
+    b = gen.heights(task, np.random.default_rng(3))
+    c = gen.heights(task, np.random.default_rng(4))
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
 
 
 def test_hexagons_grow_with_offsets(gen):
-    small = gen.profile({"poly_shape": np.zeros(12)}, np.random.default_rng(0))
-    big = gen.profile({"poly_shape": np.full(12, 3.0)}, np.random.default_rng(0))
+    small = gen.heights({"poly_shape": np.zeros(12)}, np.random.default_rng(0))
+    big = gen.heights({"poly_shape": np.full(12, 3.0)}, np.random.default_rng(0))
     assert 0.15 < small.max() < 0.4  # the default hexagon is 0.5 TS tall
     assert big.max() > 3 * small.max()
     assert rising_edges(gen, small) >= 5

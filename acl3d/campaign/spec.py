@@ -7,9 +7,9 @@ A spec is a YAML mapping::
     base: {student: ppo, preset: fast, steps: 100000}   # TrainConfig options of every run
     grid:                      # axes, expanded in this order (a product)
       teacher: [random, alp-gmm]              # a list: values of one TrainConfig option
-      criterion:                              # a mapping: named profiles setting several options
+      criterion:                              # a mapping: named settings of several options
         mostly-unfeasible: {bounds: {stump_height: [0, 9]}}
-        variety-of-students:                  # a profile may hold variants (one run each)
+        variety-of-students:                  # named settings may hold variants (one run each)
           variants: {spider-sac: {body: spider, student: sac}, ...}
     seeds: 16                  # or a list of seeds
     exclude: [{teacher: adr, expert_knowledge: "no"}]   # runs matching all keys are skipped
@@ -289,19 +289,19 @@ def _axis_entries(axis: str, values, where: str) -> list[tuple[str, str | None, 
         return [(value, None, {axis: value}) for value in values]
     if isinstance(values, dict) and values:
         entries = []
-        for label, profile in values.items():
-            profile = dict(profile or {})
-            variants = profile.pop("variants", None)
+        for label, settings in values.items():
+            settings = dict(settings or {})
+            variants = settings.pop("variants", None)
             if variants is None:
-                entries.append((str(label), None, profile))
+                entries.append((str(label), None, settings))
                 continue
             if not isinstance(variants, dict) or not variants:
                 raise ValueError(f"{where}.{label}.variants must be a non-empty mapping")
             for vname, vopts in variants.items():
-                entries.append((str(label), str(vname), {**profile, **dict(vopts or {})}))
+                entries.append((str(label), str(vname), {**settings, **dict(vopts or {})}))
         return entries
     raise ValueError(
-        f"{where}: an axis is a list of values or a mapping of named profiles, got {values!r}"
+        f"{where}: an axis is a list of values or a mapping of named settings, got {values!r}"
     )
 
 
@@ -320,29 +320,29 @@ def _scale_axis(axis: str, values, budget: float):
     if isinstance(values, list):
         return [_scale({axis: v}, budget)[axis] for v in values]
     scaled = {}
-    for label, profile in values.items():
-        profile = dict(profile or {})
-        if isinstance(profile.get("variants"), dict):
-            profile["variants"] = {
-                k: _scale(dict(v or {}), budget) for k, v in profile["variants"].items()
+    for label, settings in values.items():
+        settings = dict(settings or {})
+        if isinstance(settings.get("variants"), dict):
+            settings["variants"] = {
+                k: _scale(dict(v or {}), budget) for k, v in settings["variants"].items()
             }
-        scaled[label] = _scale(profile, budget)
+        scaled[label] = _scale(settings, budget)
     return scaled
 
 
 def _drop_keys(axis: str, values, sets: dict):
-    """A --set option wins over the grid: a list axis it sets disappears, profiles lose it."""
+    """A --set option wins over the grid: a list axis it sets disappears, named settings lose it."""
     if isinstance(values, list):
         return None if axis in sets else values
     out = {}
-    for label, profile in values.items():
-        profile = {k: v for k, v in dict(profile or {}).items() if k not in sets}
-        if isinstance(profile.get("variants"), dict):
-            profile["variants"] = {
+    for label, settings in values.items():
+        settings = {k: v for k, v in dict(settings or {}).items() if k not in sets}
+        if isinstance(settings.get("variants"), dict):
+            settings["variants"] = {
                 k: {kk: vv for kk, vv in dict(v or {}).items() if kk not in sets}
-                for k, v in profile["variants"].items()
+                for k, v in settings["variants"].items()
             }
-        out[label] = profile
+        out[label] = settings
     return out
 
 

@@ -129,7 +129,7 @@ class Arena:
         """Hook for arenas that add to the track template before compiling (e.g. Parkour)."""
 
     def write_heights(self, heights: np.ndarray) -> None:
-        """Write the terrain profile (metres above the flat ground) into the compiled heightfield."""
+        """Write the height line (metres above the flat ground) into the compiled heightfield."""
         self.heights = heights
         self._hfield[:] = np.clip(heights / MAX_TERRAIN_HEIGHT, 0.0, 1.0)[None, :]
         self.version += 1
@@ -151,7 +151,7 @@ class Arena:
 
     # ------------------------------------------------------------------ exact snapshots
     def episode_state(self) -> dict:
-        """The per-episode world: the terrain profile."""
+        """The per-episode world: the height line."""
         return {"terrain/heights": self.heights.copy()}
 
     def check_episode_state(self, state) -> dict:
@@ -163,7 +163,7 @@ class Arena:
 
 
 class TrackArena(Arena):
-    """Stump and Hexagon Tracks: one heightfield written from a `TrackGenerator` profile."""
+    """Stump and Hexagon Tracks: one heightfield written from a `TrackGenerator` height line."""
 
     def __init__(self, body: Body, generator: TrackGenerator):
         self.generator = generator
@@ -171,4 +171,4 @@ class TrackArena(Arena):
 
     def regenerate(self, task: dict, rng: np.random.Generator) -> None:
         """This episode's terrain for `task`, drawn from `rng`, written in place."""
-        self.write_heights(self.generator.profile(task, rng, self.start_pad))
+        self.write_heights(self.generator.heights(task, rng, self.start_pad))

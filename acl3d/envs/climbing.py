@@ -7,7 +7,7 @@ activates it, with torquescale 0 so it pins the grasp point and leaves rotation 
 counterpart of the free revolute joint). Releasing deactivates it.
 
 "Touch" is geometric, like the original's coarse AABB test: the sensor point, padded by its
-radius + 1 cm, reaches the ceiling profile or lies in a creeper box (in the box's own frame, so
+radius + 1 cm, reaches the ceiling line or lies in a creeper box (in the box's own frame, so
 swinging creeper segments work too). Creepers never collide with bodies, and a hand can grasp
 the ceiling from slightly below it, so contacts are not needed. A weld holds the world (ceiling)
 or the creeper's body: `model.eq_obj2id` is set at the grab. Anchors and targets live in the

@@ -5,8 +5,8 @@ points laid out on a forward x lateral grid that turns with the body's heading (
 grid stays level when the body pitches or rolls), each reported relative to the root's height.
 Heights are interpolated bilinearly from the heightfield array itself (no ray casts): the cost
 is a few array operations for all points of all envs, whatever the terrain. Points off the field
-read its nearest edge. On the tracks the profile is the same across the track, so the scan sees
-it at every lateral offset.
+read its nearest edge. On the tracks the height line is the same across the track, so the scan
+sees it at every lateral offset.
 """
 
 from __future__ import annotations
@@ -25,11 +25,11 @@ class HeightScan:
     """Heights around a body's root on its arena's heightfield: the rules' terrain sensor.
 
     Args:
-        arena: the body's arena; a 2D field (`heights` (rows, cols)) or a track (one profile
+        arena: the body's arena; a 2D field (`heights` (rows, cols)) or a track (one height line
             `heights` (cols,), the same at every y).
         forward, lateral: the scan points' offsets in the heading frame (metres).
 
-    The rules keep each env's heights in a row of `batch_heights(n)` (a track's profile as two
+    The rules keep each env's heights in a row of `batch_heights(n)` (a track's height line as two
     equal rows) and `read_batch` gives the `nb_rays` readings of N envs (forward offsets varying
     fastest): terrain height - root height, in metres.
     """
@@ -37,9 +37,9 @@ class HeightScan:
     def __init__(self, arena, forward: np.ndarray = FORWARD, lateral: np.ndarray = LATERAL):
         self.arena = arena
         g = arena.grid
-        profile = np.ndim(arena.heights) == 1  # a track: rows across it are all the same
-        y_min = -TRACK_HALF_WIDTH if profile else -g.half_width
-        self._shape = (2, g.ncol) if profile else np.shape(arena.heights)
+        line = np.ndim(arena.heights) == 1  # a track: rows across it are all the same
+        y_min = -TRACK_HALF_WIDTH if line else -g.half_width
+        self._shape = (2, g.ncol) if line else np.shape(arena.heights)
         dx, dy = np.meshgrid(np.asarray(forward, float), np.asarray(lateral, float))
         self._inv_cell = 1.0 / float(g.cell)
         # a point's offset in grid cells, (row, column) = (y, x), turned by the heading yaw:

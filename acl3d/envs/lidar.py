@@ -64,10 +64,10 @@ class Lidar:
         )
 
 
-class ProfileLidar(Lidar):
-    """The same rays, cast analytically on a track's height profile (4x fewer microseconds).
+class HeightLineLidar(Lidar):
+    """The same rays, cast analytically on a track's height line (4x fewer microseconds).
 
-    A track is a profile extruded across it, so a sagittal ray meets the terrain where the
+    A track is a height line extruded across it, so a sagittal ray meets the terrain where the
     heightfield's centre line does: the piecewise-linear chain through the columns. From the
     origin, the first terrain point above ray i is the first column whose elevation slope
     (h - z0) / (x - x0) reaches the ray's slope; with a running maximum of those slopes, one
@@ -82,7 +82,7 @@ class ProfileLidar(Lidar):
         sin, cos = self._vec[0::3], -self._vec[2::3]
         if np.any(sin < -1e-12):
             raise ValueError(
-                f"ProfileLidar casts forward/downward rays only; lidar type {kind!r} looks back"
+                f"HeightLineLidar casts forward/downward rays only; lidar type {kind!r} looks back"
             )
         self.arena = arena
         self._x_min, self._cell, self._ncol = arena.grid.x_min, arena.grid.cell, arena.grid.ncol
@@ -101,7 +101,7 @@ class ProfileLidar(Lidar):
         return self.read_heights(self.arena.heights, origin)
 
     def read_heights(self, heights: np.ndarray, origin: np.ndarray) -> np.ndarray:
-        """The rays from `origin` on the profile `heights` (the grid's columns, or more)."""
+        """The rays from `origin` on the height line `heights` (the grid's columns, or more)."""
         x0, z0 = float(origin[0]), float(origin[2])
         j = int((x0 - self._x_min) / self._cell)
         j = min(max(j, 0), self._ncol - 2)
@@ -133,7 +133,7 @@ class ProfileLidar(Lidar):
         return out
 
     def batch_heights(self, n: int) -> np.ndarray:
-        """Buffer for `read_batch`: N profiles of the grid's columns, then a -inf margin (the
+        """Buffer for `read_batch`: N height lines of the grid's columns, then a -inf margin (the
         columns past the track end, which no ray crosses)."""
         out = np.full((n, self._ncol + self._reach + 1), -np.inf)
         out[:, : self._ncol] = 0.0

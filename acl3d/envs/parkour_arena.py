@@ -254,10 +254,10 @@ class ParkourArena(Arena):
             raise validation.fail(
                 "state['terrain/creepers']", creepers, f"a finite (k <= {pool}, 4) float array"
             )
-        profile = np.zeros(self.generator.nb_points)
+        line = np.zeros(self.generator.nb_points)
         checked = {
-            "ground": env_state.array(state, "terrain/ground", profile),
-            "ceiling": env_state.array(state, "terrain/ceiling", profile),
+            "ground": env_state.array(state, "terrain/ground", line),
+            "ceiling": env_state.array(state, "terrain/ceiling", line),
             "creepers": creepers.astype(np.float64),
             "water_z": env_state.scalar(state, "terrain/water_z", "real"),
             "wet": env_state.scalar(state, "water/wet", "flag"),

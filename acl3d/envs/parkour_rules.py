@@ -35,7 +35,7 @@ class ParkourLidar:
     """The original's 10 rays cast analytically on Parkour's surfaces, with surface-type flags.
 
     Same rays as the track lidar (`acl3d.envs.lidar`: angles a*i/10 + b per type, 5.33 m).
-    Ground and ceiling are piecewise-linear profiles along x (exactly what the heightfields
+    Ground and ceiling are piecewise-linear height lines along x (exactly what the heightfields
     hold), creepers are boxes (static or swinging segments), the water is a horizontal plane seen
     from above only (the original does not see its surface from inside). Casting on these
     shapes in numpy gives the distances `mj_multiRay` gives (tested) several times faster on

@@ -14,7 +14,7 @@ from acl3d.bodies.base import Body
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.arena import TrackArena
 from acl3d.envs.height_scan import HeightScan
-from acl3d.envs.lidar import ProfileLidar
+from acl3d.envs.lidar import HeightLineLidar
 from acl3d.envs.profiles import HEXAGON_TRACKS, STUMP_TRACKS
 from acl3d.envs.track_rules import TrackRules
 from acl3d.terrain.tracks import TrackGenerator, TrackGrid, check_buildable, track_task_space
@@ -61,7 +61,7 @@ class TrackComposition:
     def build_rules(self, arena: TrackArena) -> TrackRules:
         if self.observation == "height_scan":
             return TrackRules(arena.bound, HeightScan(arena))
-        return TrackRules(arena.bound, ProfileLidar(arena, "down"))
+        return TrackRules(arena.bound, HeightLineLidar(arena, "down"))
 
     def signature(self) -> str:
         """What a saved state must match beyond the body and model sizes (the sensor, if not

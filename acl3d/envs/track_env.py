@@ -5,8 +5,8 @@ terrain generator and what it writes) and the rules (TrackRules: observation, re
 termination), bound together in one compiled model. A composition
 (`acl3d.envs.track_composition`; Parkour's in acl3d.envs.parkour_env) builds the arena and the
 rules for a body; `TrackEnv` is the core that binds and steps them.
-The task (track parameters) can change at every reset without recompiling: the new profile is
-written into the heightfield in place. Per-episode randomness comes from `self.np_random`.
+The task (track parameters) can change at every reset without recompiling: the new height line
+is written into the heightfield in place. Per-episode randomness comes from `self.np_random`.
 """
 
 from __future__ import annotations

@@ -61,7 +61,7 @@ class EpisodeRows:
 
     prev_shaping: the last step's shaping; critical_contact: a critical part touched something
     at the last step; episode_return: the running return; warnings: MuJoCo's count of diverged
-    steps seen so far; heights: each env's terrain profile (for the profile lidar; None if the
+    steps seen so far; heights: each env's terrain (for the height-line lidar; None if the
     lidar reads the arena itself).
     """
 
@@ -148,7 +148,7 @@ class TrackRules:
     def take_terrain(self, rows: EpisodeRows, i: int = 0) -> None:
         """Row i's env wrote a new terrain (reset or restore): the lidar reads it from its row."""
         if rows.heights is not None:
-            heights = self.lidar.arena.heights  # a profile (cols,) or a field (rows, cols)
+            heights = self.lidar.arena.heights  # a height line (cols,) or a field (rows, cols)
             rows.heights[i, ..., : heights.shape[-1]] = heights
 
     # ------------------------------------------------------------------ actions
@@ -234,7 +234,7 @@ class TrackRules:
         return x, obs
 
     def sense(self, physics, rows: EpisodeRows) -> np.ndarray:
-        """(N, nb_rays) terrain sensor readings: the profile lidar and the height scan read all
+        """(N, nb_rays) terrain sensor readings: the height-line lidar and the height scan read all
         envs at once from their rows' heights and the roots' positions and orientations; another
         sensor (`read(model, data, origin)`) reads one env."""
         if rows.heights is not None:

@@ -62,7 +62,7 @@ def silhouette(model: mujoco.MjModel, geom: int) -> tuple[int, int, float]:
     elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE and k_y != 2:
         area = 4 * size[0] * size[1] + math.pi * size[0] ** 2
     elif kind in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER) and k_y == 2:
-        area = math.pi * size[0] ** 2  # axis across the track: a disc in profile
+        area = math.pi * size[0] ** 2  # axis across the track: a disc seen from the side
     elif kind == mujoco.mjtGeom.mjGEOM_MESH:
         area = _mesh_volume(model, model.geom_dataid[geom]) / (2 * half[k_y])
     else:  # box, cylinder lying in the plane

@@ -1,4 +1,4 @@
-"""Parkour terrain: a fixed random CPPN maps a 3-number input to ground and ceiling profiles.
+"""Parkour terrain: a fixed random CPPN maps a 3-number input to ground and ceiling lines.
 
 Pure numpy, no MuJoCo. As in TeachMyAgent (§2.4 of the reference), the CPPN is evaluated at 200
 points x_i = i/199 with input rows [x_i, v1, v2, v3]; output 0 is the ground, output 1 the
@@ -143,7 +143,8 @@ def cppn(input_vector, seed: int = CPPN_SEED) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ParkourTerrain:
-    """One episode's terrain. Profiles are sampled at the knots x = i*TS, i = 0..n-1."""
+    """One episode's terrain. The ground and ceiling lines (heights along x) are sampled at the
+    knots x = i*TS, i = 0..n-1."""
 
     x: np.ndarray
     ground: np.ndarray
@@ -176,7 +177,7 @@ class ParkourGenerator:
         """Most creepers any task can place (one every 2 knots at the smallest spacing)."""
         return (self.nb_points + 1) // 2
 
-    def profiles(self, input_vector, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    def height_lines(self, input_vector, scale: float) -> tuple[np.ndarray, np.ndarray]:
         """(ground, ceiling) in metres at the knots: start pad, then the scaled CPPN output."""
         y = cppn(input_vector, self.seed) / scale
         offset, clip = CEILING_OFFSET / scale, CEILING_CLIP_OFFSET / scale
@@ -188,7 +189,7 @@ class ParkourGenerator:
 
     def generate(self, task: Mapping[str, object], rng: np.random.Generator) -> ParkourTerrain:
         scale = float(task["terrain_cppn_scale"])
-        ground, ceiling = self.profiles(task["input_vector"], scale)
+        ground, ceiling = self.height_lines(task["input_vector"], scale)
         # the original maps the level between GROUND_LIMIT and the highest ceiling point in its
         # own frame (start-pad ground at TERRAIN_HEIGHT); shift that frame to ours
         bottom = GROUND_LIMIT / scale - TERRAIN_HEIGHT

@@ -1,6 +1,6 @@
 """3D Terrain: task parameters -> a 2D heightfield (rows along y, columns along x).
 
-Pure numpy, no MuJoCo. Unlike the tracks (a profile extruded across the track), every quantity
+Pure numpy, no MuJoCo. Unlike the tracks (a height line extruded across the track), every quantity
 here varies across the field too: blocks cover a fraction of its width at random lateral
 positions (full-width walls to climb, or blocks to walk around), the ground twists (a cross
 slope whose sign alternates along the field), rolls in hills and is rough on a 0.5 m lattice.

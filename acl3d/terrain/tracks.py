@@ -1,9 +1,10 @@
-"""Stump Tracks and Hexagon Tracks terrain: task parameters -> a height profile along the track.
+"""Stump Tracks and Hexagon Tracks terrain: task parameters -> a height line along the track.
 
-Pure numpy, no MuJoCo. The profile is sampled on a regular x grid and becomes the columns of a
-heightfield extruded across the track; stumps, stump sequences and hexagons are part of that
-profile (their upper envelope). Units follow TeachMyAgent: metres, with stump heights in terrain
-steps (TS = 14/30 m) and obstacle spacing in metres of flat ground between obstacles.
+Pure numpy, no MuJoCo. The height line (heights along x, the same across the track) is sampled
+on a regular x grid and becomes the columns of a heightfield extruded across the track; stumps,
+stump sequences and hexagons are part of that line (their upper envelope). Units follow
+TeachMyAgent: metres, with stump heights in terrain steps (TS = 14/30 m) and obstacle spacing in
+metres of flat ground between obstacles.
 """
 
 from __future__ import annotations
@@ -116,7 +117,7 @@ def check_buildable(task: Mapping[str, np.ndarray]) -> None:
 
 @dataclass(frozen=True)
 class TrackGrid:
-    """The x sampling of the profile: heightfield columns from x_min to x_max."""
+    """The x sampling of the height line: heightfield columns from x_min to x_max."""
 
     x_min: float = -5.0
     x_max: float = TERRAIN_LENGTH * TERRAIN_STEP + 10.0
@@ -161,7 +162,7 @@ def _columns(grid: TrackGrid, x0: float, x1: float) -> slice:
 
 
 class TrackGenerator:
-    """Builds the terrain profile of one episode from a task dict and the env's generator."""
+    """Builds the height line of one episode from a task dict and the env's generator."""
 
     def __init__(self, grid: TrackGrid = TrackGrid()):
         self.grid = grid
@@ -177,7 +178,7 @@ class TrackGenerator:
         y = _convex_upper_envelope(polygon, self.x[cols])
         np.fmax(heights[cols], y, out=heights[cols])
 
-    def profile(
+    def heights(
         self, task: Mapping[str, object], rng: np.random.Generator, start_pad: int = START_PAD
     ) -> np.ndarray:
         """Heights (metres above the flat ground) at `self.x` for one episode.

@@ -1,7 +1,7 @@
 """The SB3 callbacks of a training run, one job each, combined with SB3's `CallbackList`.
 
 * `EpisodeLogCallback`   finished training episodes -> episodes.csv and TensorBoard curriculum/*
-* `StudentResetCallback` re-initialise the student every N steps (the forgetting-student profile)
+* `StudentResetCallback` re-initialise the student every N steps (the forgetting-student criterion)
 * `EvaluationCallback`   test-set evaluation -> evals.csv, evals_tasks.csv, TensorBoard eval/*
 * `CheckpointCallback`   a complete, resumable checkpoint
 * `ExclusionCallback`    marks exploratory episodes' transitions so the updates leave them out
