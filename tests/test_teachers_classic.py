@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from acl3d.task_space import TaskSpace
-from acl3d.teachers import make
+from acl3d.teachers import RunFacts, make, teacher_class
 from acl3d.teachers.gmm import fit_gmm
 from acl3d.teachers.presets import BENCHMARK, PRESETS, TEACHDEEPRL, preset_params
 from acl3d.toy import ToyEnv, run_teacher
@@ -180,6 +180,15 @@ def test_presets_build_every_teacher_and_benchmark_equals_class_defaults():
     assert TEACHDEEPRL["alp-gmm"]["potential_ks"] == list(range(2, 11))
     with pytest.raises(ValueError, match="preset"):
         preset_params("fast", "riac")
+
+
+def test_presets_leave_the_environment_facts_to_the_run():
+    """A preset value would hide the env's curriculum profile from every run that uses it."""
+    facts = RunFacts(initial_dist={"mean": np.zeros(2), "variance": np.eye(2)}, total_steps=10**6)
+    for preset in PRESETS:
+        for name in NAMES:
+            from_run = set(teacher_class(name).run_params(facts))
+            assert not from_run & set(preset_params(preset, name)), (preset, name)
 
 
 def test_gmm_fit_recovers_separated_clusters():

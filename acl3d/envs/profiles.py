@@ -4,7 +4,8 @@ Every fact a curriculum needs about Stump Tracks, Hexagon Tracks and Parkour is 
 next to the environments, and reaches the teachers through `env.unwrapped.curriculum_profile`:
 
 * reward bounds for scaling: [-150, 350] on the tracks, [-150, 360] on Parkour (TeachMyAgent);
-* success: a return above 230 (the tasks' own threshold); ADR thresholds 0 and 180;
+* success: a return above 230 (TeachMyAgent's threshold; also the Oracle's); ADR thresholds 0
+  and 180;
 * the expert-knowledge initial distributions (task-space units, diagonal "variance"):
   Stump Tracks: stump_height mean 0 (clipped into the bounds), obstacle_spacing mean = its
   maximum, any other parameter its centre, variance (0.1 * range)^2; Hexagon Tracks: mean 0
