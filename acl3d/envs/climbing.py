@@ -64,7 +64,9 @@ class Climbing:
             ]
         )
         self.creeper_geoms = creeper_geoms
-        self._active = creeper_geoms[:0]
+        self.nb_creepers = 0  # creeper geoms in use this episode (the pool's first ones)
+        self.creeper_size = np.zeros((len(creeper_geoms), 3))
+        self.creeper_rbound = np.zeros(len(creeper_geoms))
         self.terrain: ParkourTerrain | None = None
         self._held = np.full(self.nb_sensors, -1)  # creeper geom touched by each hand, -1: ceiling
         self.ready = np.zeros(self.nb_sensors, dtype=bool)
@@ -72,54 +74,25 @@ class Climbing:
         self.touching = np.zeros(self.nb_sensors, dtype=bool)
         self._quat = np.zeros(4)
 
-    def reset(self, data: mujoco.MjData, terrain: ParkourTerrain, nb_creeper_geoms: int) -> None:
-        """New episode: everything released; the first `nb_creeper_geoms` creeper geoms are in use."""
-        self.terrain = terrain
-        self._active = self.creeper_geoms[:nb_creeper_geoms]
+    def reset(self, data: mujoco.MjData, arena) -> None:
+        """New episode: everything released; the arena's creepers in use are graspable."""
+        self.terrain = arena.terrain
+        self.nb_creepers = arena.nb_creeper_geoms
+        self.creeper_size, self.creeper_rbound = arena.creeper_size, arena.creeper_rbound
         data.eq_active[self.eq_ids] = 0
         self.ready[:] = self.holding[:] = self.touching[:] = False
 
     def before_step(self, data: mujoco.MjData, grasp_actions: np.ndarray) -> None:
         """Positive grasp action: ready to grab; otherwise release any hold."""
-        self.ready = grasp_actions > 0
-        release = self.holding & ~self.ready
-        if release.any():
-            data.eq_active[self.eq_ids[release]] = 0
-            self.holding &= self.ready
+        before_steps([self], data.eq_active[None], grasp_actions[None])
 
     def after_step(self, data: mujoco.MjData) -> None:
         """Update touch flags; ready, free hands that touch a graspable surface grab it."""
-        points = data.geom_xpos[self.geom_ids]
-        self.touching = self._touches(data, points)
-        grab = self.ready & ~self.holding & self.touching
-        for i in np.flatnonzero(grab):
-            self._grab(data, i, points[i], self._held[i])
+        after_steps([self], lambda i: data, data.geom_xpos[None], data.geom_xmat[None])
 
     def state(self) -> np.ndarray:
         """Per sensor [touching a graspable surface, holding], as the original's sensor state."""
         return np.column_stack((self.touching, self.holding)).astype(np.float64).ravel()
-
-    def _touches(self, data: mujoco.MjData, points: np.ndarray) -> np.ndarray:
-        """Per hand: touching the ceiling or a creeper (which one goes to `self._held`)."""
-        pad = self.radius + TOUCH_MARGIN
-        ceiling = points[:, 2] + self.radius + CEILING_MARGIN >= self.terrain.ceiling_at(
-            points[:, 0]
-        )
-        self._held[:] = -1
-        g = self._active
-        if not len(g):
-            return ceiling
-        rel = points[:, None, :] - data.geom_xpos[g][None, :, :]
-        reach = self.model.geom_rbound[g] + pad.max()
-        near = (np.einsum("snk,snk->sn", rel, rel) <= reach * reach).any(axis=0)
-        if not near.any():
-            return ceiling
-        g, rel = g[near], rel[:, near]
-        local = np.einsum("snk,nkj->snj", rel, data.geom_xmat[g].reshape(-1, 3, 3))
-        inside = np.all(np.abs(local) <= self.model.geom_size[g] + pad[:, None, None], axis=-1)
-        on_creeper = inside.any(axis=1) & ~ceiling  # the ceiling wins when both are touched
-        self._held[on_creeper] = g[inside.argmax(axis=1)[on_creeper]]
-        return ceiling | on_creeper
 
     def _grab(self, data: mujoco.MjData, i: int, point: np.ndarray, creeper_geom: int) -> None:
         """Weld hand i where it is to the creeper's body (or the world: the ceiling)."""
@@ -135,3 +108,62 @@ class Climbing:
         d[10] = 0.0  # torquescale 0: position-only, rotation free
         data.eq_active[eq] = 1
         self.holding[i] = True
+
+
+def before_steps(climbings: Sequence[Climbing], eq_active: np.ndarray, grasp_actions) -> None:
+    """`Climbing.before_step` of N envs' climbers at once: eq_active (N, neq) their weld flags,
+    grasp_actions (N, hands)."""
+    ready = grasp_actions > 0
+    holding = np.stack([c.holding for c in climbings])
+    release = holding & ~ready
+    for i, c in enumerate(climbings):
+        c.ready = ready[i]
+    for i in np.flatnonzero(release.any(axis=1)):
+        c = climbings[i]
+        eq_active[i, c.eq_ids[release[i]]] = 0
+        c.holding &= c.ready
+
+
+def after_steps(climbings: Sequence[Climbing], row_data, xpos, xmat) -> None:
+    """`Climbing.after_step` of N envs' climbers (of one body) at once: touch flags from the
+    geoms' poses xpos (N, ngeom, 3) and xmat (N, ngeom, 9), then the grabs, each on its env's
+    data (`row_data(i)`). Element by element the arithmetic of one env alone, whatever N."""
+    first = climbings[0]
+    points = xpos[:, first.geom_ids]  # (N, hands, 3)
+    touching, held = _touches(climbings, points, xpos, xmat)
+    for i, c in enumerate(climbings):
+        c.touching, c._held = touching[i], held[i]
+        for hand in np.flatnonzero(c.ready & ~c.holding & c.touching):
+            c._grab(row_data(i), hand, points[i, hand], c._held[hand])
+
+
+def _touches(climbings, points, xpos, xmat) -> tuple[np.ndarray, np.ndarray]:
+    """(N, hands) touching the ceiling or a creeper, and the creeper geom each hand touches
+    (-1: the ceiling or none; the ceiling wins when both are touched)."""
+    first = climbings[0]
+    radius = first.radius
+    pad = radius + TOUCH_MARGIN
+    ceilings = np.stack([c.terrain.ceiling_at(points[i, :, 0]) for i, c in enumerate(climbings)])
+    ceiling = points[:, :, 2] + radius + CEILING_MARGIN >= ceilings
+    held = np.full(ceiling.shape, -1)
+    count = np.array([c.nb_creepers for c in climbings])
+    if not count.any():
+        return ceiling, held
+    used = int(count.max())
+    pool = first.creeper_geoms[:used]
+    rel = points[:, :, None, :] - xpos[:, pool][:, None, :, :]  # (N, hands, P, 3)
+    rbound = np.stack([c.creeper_rbound[:used] for c in climbings])
+    reach = rbound + pad.max()
+    # geoms near any hand (within their bounding sphere), among those in use
+    near = (np.einsum("nspk,nspk->nsp", rel, rel) <= (reach * reach)[:, None, :]).any(axis=1)
+    near &= np.arange(used) < count[:, None]
+    if not near.any():
+        return ceiling, held
+    rot = xmat[:, pool].reshape(len(climbings), used, 3, 3)
+    local = np.einsum("nspk,npkj->nspj", rel, rot)
+    size = np.stack([c.creeper_size[:used] for c in climbings])
+    box = size[:, None, :, :] + pad[None, :, None, None]
+    inside = np.all(np.abs(local) <= box, axis=-1) & near[:, None, :]
+    on_creeper = inside.any(axis=2) & ~ceiling
+    held[on_creeper] = pool[inside.argmax(axis=2)[on_creeper]]
+    return ceiling | on_creeper, held

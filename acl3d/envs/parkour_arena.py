@@ -68,6 +68,9 @@ class ParkourArena(Arena):
         self._creeper_rgba = m.geom_rgba[self.creeper_geoms[0]].copy()
         self.ceiling_heights = np.full(grid.ncol, CEILING_RANGE[1])
         self.nb_creeper_geoms = 0
+        # this episode's creeper boxes, padded to the pool: half sizes and bounding radii
+        self.creeper_size = np.zeros((len(self.creeper_geoms), 3))
+        self.creeper_rbound = np.zeros(len(self.creeper_geoms))
         self.terrain: ParkourTerrain | None = None
         self.water = Water(m, self.bound.body_geom_ids, push_clip=water_clip)
         sensors = body.grasp_sensors
@@ -178,6 +181,9 @@ class ParkourArena(Arena):
         m.body_pos[bodies[n:, 0]] = (0.0, 0.0, PARKED_Z)
         m.geom_rgba[geoms[n:].ravel(), 3] = 0.0  # invisible to renderers and rays
         self.nb_creeper_geoms = used.size
+        self.creeper_size[:] = self.creeper_rbound[:] = 0.0
+        self.creeper_size[: used.size] = m.geom_size[used]
+        self.creeper_rbound[: used.size] = m.geom_rbound[used]
 
     # ------------------------------------------------------------------ episodes
     def regenerate(self, task: dict, rng: np.random.Generator) -> None:
@@ -197,7 +203,7 @@ class ParkourArena(Arena):
             self.bound.place(data, self.start_x, self.body.spawn_height)
         self.water.clear(data)
         if self.climbing:
-            self.climbing.reset(data, self.terrain, self.nb_creeper_geoms)
+            self.climbing.reset(data, self)
             self._lift_to_ceiling(data)
 
     def _lift_to_ceiling(self, data: mujoco.MjData) -> None:
@@ -217,12 +223,6 @@ class ParkourArena(Arena):
         for _ in range(HANG_STEPS):
             control_step(grasp)
             self.climbing.after_step(data)
-
-    def before_step(self, data: mujoco.MjData, action: np.ndarray) -> None:
-        """Grasps are released first; water forces for this step."""
-        if self.climbing:
-            self.climbing.before_step(data, action[-self._nb_grasp :])
-        self.water.apply(data)
 
     # ------------------------------------------------------------------ exact snapshots
     def episode_state(self) -> dict:
@@ -273,6 +273,6 @@ class ParkourArena(Arena):
         )
         self.water.wet = c["wet"]
         if self.climbing:  # welds: eq_active comes back with the physics
-            self.climbing.reset(data, self.terrain, self.nb_creeper_geoms)
+            self.climbing.reset(data, self)
             for key in GRASP:
                 setattr(self.climbing, key, c[key])

@@ -21,6 +21,7 @@ import numpy as np
 
 from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
+from acl3d.envs.climbing import after_steps, before_steps
 from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
 from acl3d.envs.track_rules import FAIL_REWARD, EpisodeRows, TrackRules, torque_use
 
@@ -70,13 +71,19 @@ class ParkourLidar:
     def read(self, model, data, origin) -> np.ndarray:
         """Fractions in [0, 1] (1 = nothing within range) for this env's arena alone."""
         arena = self.arena
-        count, size, rbound = creeper_boxes(arena)
+        count, size, rbound = arena.nb_creeper_geoms, arena.creeper_size, arena.creeper_rbound
         fractions, _ = self._cast(
             arena.heights[None],
             arena.ceiling_heights[None],
             np.array([arena.water.level]),
             np.asarray(origin, dtype=np.float64)[None],
-            (data.geom_xpos[None], data.geom_xmat[None], count[None], size[None], rbound[None]),
+            (
+                data.geom_xpos[None],
+                data.geom_xmat[None],
+                np.array([count]),
+                size[None],
+                rbound[None],
+            ),
         )
         return fractions[0]
 
@@ -154,7 +161,7 @@ class ParkourLidar:
         """(N, rays) distance along each ray to the nearest creeper box of its env entered from
         outside (inf: none); None when no env has a creeper within reach. xpos, xmat: the
         envs' (N, ngeom, ...) geom poses; count, size, rbound: their creeper boxes in use
-        (`creeper_boxes`)."""
+        (the arenas' `nb_creeper_geoms`, `creeper_size`, `creeper_rbound`)."""
         if not count.any():
             return None
         used = int(count.max())
@@ -182,16 +189,6 @@ class ParkourLidar:
         return out.T
 
 
-def creeper_boxes(arena) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(number in use, half sizes (P, 3), bounding radii (P,)) of an arena's creeper geoms this
-    episode (the pool's first ones), padded to the pool's size P."""
-    pool = arena.creeper_geoms
-    count, model = arena.nb_creeper_geoms, arena.model
-    size, rbound = np.zeros((len(pool), 3)), np.zeros(len(pool))
-    size[:count], rbound[:count] = model.geom_size[pool[:count]], model.geom_rbound[pool[:count]]
-    return np.array(count), size, rbound
-
-
 class ParkourRules(TrackRules):
     """The tracks' rules + water, survival counters, grasping and the Parkour observation layout,
     for N envs at once like the tracks': each env's survival counters, terrain (ground, ceiling,
@@ -217,6 +214,7 @@ class ParkourRules(TrackRules):
     ):
         self.arena = arena  # this env's: its terrain goes to its row at each reset
         self.climber = arena.climbing is not None
+        self._nb_grasp = len(bound.body.grasp_sensors)
         super().__init__(bound, lidar, end_x)
         body = bound.body
         self.kind = body.kind
@@ -253,7 +251,8 @@ class ParkourRules(TrackRules):
         rows.ground[i], rows.ceiling[i] = arena.heights, arena.ceiling_heights
         rows.water_level[i] = arena.water.level
         rows.arenas[i] = arena
-        rows.creeper_count[i], rows.creeper_size[i], rows.creeper_rbound[i] = creeper_boxes(arena)
+        rows.creeper_count[i] = arena.nb_creeper_geoms
+        rows.creeper_size[i], rows.creeper_rbound[i] = arena.creeper_size, arena.creeper_rbound
 
     # ------------------------------------------------------------------ survival
     def begin_episode(self, rows: EpisodeRows) -> None:
@@ -261,18 +260,18 @@ class ParkourRules(TrackRules):
         rows.dead[:] = False
 
     def before_physics(self, physics, actions: np.ndarray, rows: EpisodeRows) -> np.ndarray:
-        """Dead bodies play zeros; then each env's arena releases grasps and applies the water
-        forces (envs whose body neither reaches nor left the water have none to apply)."""
+        """Dead bodies play zeros; climbers release the grasps their actions let go (all envs at
+        once); then the water forces of the envs whose body reaches the water (or just left it:
+        their forces are cleared), each on its row."""
         if rows.dead.any():
             actions = np.where(rows.dead[:, None], 0.0, actions)
         if self.climber:
-            envs = range(len(actions))
-        else:
-            bottoms = physics.field("geom_xpos")[:, self._water_geoms, 2] - self._water_reach
-            wet = [arena.water.wet for arena in rows.arenas]
-            envs = np.flatnonzero((bottoms.min(axis=1) < rows.water_level) | wet)
-        for i in envs:
-            rows.arenas[i].before_step(physics.row_data(i), actions[i])
+            climbings = [arena.climbing for arena in rows.arenas]
+            before_steps(climbings, physics.field("eq_active"), actions[:, -self._nb_grasp :])
+        bottoms = physics.field("geom_xpos")[:, self._water_geoms, 2] - self._water_reach
+        wet = [arena.water.wet for arena in rows.arenas]
+        for i in np.flatnonzero((bottoms.min(axis=1) < rows.water_level) | wet):
+            rows.arenas[i].water.apply(physics.row_data(i))
         return actions
 
     def episode_state(self, rows: EpisodeRows) -> dict:
@@ -348,8 +347,9 @@ class ParkourRules(TrackRules):
 
     def outcome(self, physics, actions: np.ndarray, rows):
         if self.climber:
-            for i, arena in enumerate(rows.arenas):
-                arena.climbing.after_step(physics.row_data(i))
+            climbings = [arena.climbing for arena in rows.arenas]
+            xpos, xmat = physics.field("geom_xpos"), physics.field("geom_xmat")
+            after_steps(climbings, physics.row_data, xpos, xmat)
         alive = ~rows.dead  # a dead body plays zero actions, which cost nothing
         died = self._update_survival(physics, rows)
         x, obs = self.observe(physics, rows)
