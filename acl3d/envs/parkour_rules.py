@@ -270,6 +270,8 @@ class ParkourRules(TrackRules):
             before_steps(climbings, physics.field("eq_active"), actions[:, -self._nb_grasp :])
         bottoms = physics.field("geom_xpos")[:, self._water_geoms, 2] - self._water_reach
         wet = [arena.water.wet for arena in rows.arenas]
+        # per wet env, in plain floats: the same forces on (N, geoms, edges) numpy arrays took
+        # 300 us per call for one env against 32 us (docs/benchmarks.md)
         for i in np.flatnonzero((bottoms.min(axis=1) < rows.water_level) | wet):
             rows.arenas[i].water.apply(physics.row_data(i))
         return actions
