@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(
         "what to train",
         "With no option: an ALP-GMM curriculum (expert knowledge high) for a PPO student with the "
-        "fast preset on Stump Tracks, 2M steps, 25 test tasks; minutes on a laptop.",
+        "fast preset on Stump Tracks, 1.2M steps, 25 test tasks; minutes on a laptop.",
     )
     g.add_argument(
         "--benchmark",
