@@ -15,8 +15,9 @@ bootstrapped from the value of their last observation, as SB3 does.
 Why not Gymnasium's `NormalizeReward`: its discounted return restarts at the step that ends an
 episode by termination, so a fall's -100 carries into the next episode's return (and a time
 limit's return is never restarted). Under random actions on Stump Tracks that makes the return's
-standard deviation 3.5x SB3's, every normalised reward 3.5x smaller, and the fall no longer
-clipped at -10: the loop then needed 1.5-1.7x the steps of `acl3d train` to learn to walk.
+standard deviation 3.5x SB3's and every normalised reward 3.5x smaller (a fall: -3, not -10);
+the loop then needed 1.5-1.7x the steps of `acl3d train` to learn to walk the flat track, and
+about the same with SB3's normalisation (docs/own-loop.md).
 
 Gymnasium's NEXT_STEP autoreset: the step after an episode ends only resets that sub-env (reward
 0, its action ignored); that transition is left out of the updates. Every finished episode is
@@ -121,7 +122,7 @@ class VecNormalize(gym.vector.VectorWrapper):
         obs, infos = self.env.reset(**kwargs)
         self.returns[:], self.resetting[:] = 0.0, False
         self.obs_rms.update(obs)
-        return self.scale(obs, self.obs_rms), infos
+        return self.scale(obs), infos
 
     def step(self, actions):
         obs, rewards, terminated, truncated, infos = self.env.step(actions)
@@ -133,10 +134,10 @@ class VecNormalize(gym.vector.VectorWrapper):
             self.ret_rms.update(self.returns[live])
         self.returns[ended], self.resetting = 0.0, ended
         rewards = np.clip(rewards / np.sqrt(self.ret_rms.var + self.epsilon), -self.clip, self.clip)
-        return self.scale(obs, self.obs_rms), rewards, terminated, truncated, infos
+        return self.scale(obs), rewards, terminated, truncated, infos
 
-    def scale(self, x: np.ndarray, rms: RunningMeanStd) -> np.ndarray:
-        z = (x - rms.mean) / np.sqrt(rms.var + self.epsilon)
+    def scale(self, obs: np.ndarray) -> np.ndarray:
+        z = (obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon)
         return np.clip(z, -self.clip, self.clip).astype(np.float32)
 
 
