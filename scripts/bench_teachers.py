@@ -30,6 +30,11 @@ median smallest principal std, over every fit of every seed.
         --teachers alp-gmm,covar-gmm,riac --preset teachdeeprl
     python scripts/bench_teachers.py --component-shapes --seeds 3 --variants plain \
         --teachers alp-gmm --preset teachdeeprl
+    python scripts/bench_teachers.py --reference --seeds 22 --variants unfeasible \
+        --teachers riac --preset teachdeeprl --harness unit-space
+
+`--harness` plays the unfeasible toy the way another harness around the original code might
+have (`HARNESSES`), to measure whether such a difference moves the scores.
 """
 
 from __future__ import annotations
@@ -46,10 +51,11 @@ from reference_teachers import CPU_COMPARABLE, REFERENCES, make_reference
 from scipy.stats import ttest_ind
 from threadpoolctl import threadpool_limits
 
+from acl3d.task_space import TaskSpace
 from acl3d.teachers import TEACHERS, make, teacher_class
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
 from acl3d.teachers.presets import PRESETS, preset_params
-from acl3d.toy import ToyEnv, run_teacher, toy_teacher_params
+from acl3d.toy import MASTERED, ToyEnv, run_teacher, toy_teacher_params
 
 VARIANTS = ("plain", "irrelevant", "noise", "shuffled", "unfeasible")
 # The original teachDeepRL code (tDRL defaults) on the same problems, 20k episodes: the 2-D toy
@@ -59,10 +65,44 @@ REF_SCORE_20K = {
     "unfeasible": {"alp-gmm": 20.0, "riac": 27.0, "covar-gmm": 54.0},
 }
 REF_CPU_PER_1000 = {"alp-gmm": 0.56, "covar-gmm": 0.41, "riac": 1.0}
+# Ways a harness around the original toy could have played the unfeasible variant (which the
+# original toy lacks: it exits on a task outside [0, 1]^n).
+HARNESSES = {
+    "acl3d": "tasks outside the learnable box return 0 and teach nothing (acl3d's toy)",
+    "edge-cubes": "tasks outside the learnable box are played in the edge cube they clip to",
+    "unit-space": "the teacher works in [0, 1]^n and the toy receives task x ratio",
+    "score-ge75": "a cube counts as mastered at competence >= 75 (instead of > 75)",
+}
 
 
-def make_env(variant: str, seed: int, nb_dims: int, ratio: float) -> tuple[ToyEnv, object]:
-    """The toy for `variant` and the map from teacher tasks to toy tasks (None: identity)."""
+class EdgeCubesToy(ToyEnv):
+    """Every task is learnable: `cube_of` clips an out-of-range task into an edge cube."""
+
+    def learnable(self, task) -> bool:
+        return True
+
+
+class ScoreGe75Toy(ToyEnv):
+    """The score counts cubes at competence >= 75 (the unlock threshold) as mastered."""
+
+    def score(self) -> float:
+        return float(100.0 * (self.competence >= MASTERED).mean())
+
+
+def make_env(
+    variant: str, seed: int, nb_dims: int, ratio: float, harness: str = "acl3d"
+) -> tuple[ToyEnv, object, TaskSpace]:
+    """The toy for `variant`, the map from teacher tasks to toy tasks (None: identity) and the
+    teacher's task space; `harness` (unfeasible variant only) picks one of `HARNESSES`."""
+    if harness != "acl3d":
+        if variant != "unfeasible":
+            raise ValueError(f"harness {harness!r} applies to the unfeasible variant only")
+        toy = {"edge-cubes": EdgeCubesToy, "score-ge75": ScoreGe75Toy}.get(harness, ToyEnv)
+        env = toy(nb_dims=nb_dims, nb_cubes=10, seed=seed, space_ratio=ratio)
+        if harness != "unit-space":
+            return env, None, env.task_space()
+        unit = TaskSpace.from_bounds({"position": [0.0, 1.0, nb_dims]})
+        return env, lambda task: np.asarray(task, dtype=np.float64) * ratio, unit
     kwargs = {
         "plain": {},
         "irrelevant": {"nb_irrelevant_dims": 3},
@@ -71,10 +111,10 @@ def make_env(variant: str, seed: int, nb_dims: int, ratio: float) -> tuple[ToyEn
         "unfeasible": {"space_ratio": ratio},
     }[variant]
     env = ToyEnv(nb_dims=nb_dims, nb_cubes=10, seed=seed, **kwargs)
-    if variant != "shuffled":
-        return env, None
     space = env.task_space()
-    return env, DimensionsShuffler(space.low, space.high, cuttings=4, seed=seed).forward
+    if variant != "shuffled":
+        return env, None, space
+    return env, DimensionsShuffler(space.low, space.high, cuttings=4, seed=seed).forward, space
 
 
 def principal_stds(teacher, span: np.ndarray) -> np.ndarray | None:
@@ -106,22 +146,22 @@ def bench_one(
     checkpoints,
     nb_dims,
     ratio,
+    harness="acl3d",
 ) -> tuple[list[float], float, np.ndarray | None]:
     """Scores at `checkpoints`, CPU per 1000 episodes and component shapes (`principal_stds`)
     of one run; `preset=None` runs the original algorithm (`reference_teachers`) instead of
     acl3d's teacher."""
-    env, to_env = make_env(variant, seed, nb_dims, ratio)
+    env, to_env, space = make_env(variant, seed, nb_dims, ratio, harness)
     if preset is None:
-        teacher = make_reference(name, env.task_space(), seed)
+        teacher = make_reference(name, space, seed)
     else:
         params = preset_params(preset, name) | toy_teacher_params(name, env)
-        teacher = make(name, env.task_space(), seed=seed, **params)
+        teacher = make(name, space, seed=seed, **params)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     every = math.gcd(*checkpoints)
     result = run_teacher(teacher, env, episodes, score_every=every, to_env=to_env)
     by_episode = dict(zip(result.episodes, result.scores))
-    space = env.task_space()
     shapes = principal_stds(teacher, (space.high - space.low)[:nb_dims])
     return [by_episode[c] for c in checkpoints], result.cpu_per_1000, shapes
 
@@ -138,7 +178,17 @@ def effective_params(name: str, preset: str) -> dict:
 def run_seeds(name: str, preset: str | None, variant: str, checkpoints, args) -> list[tuple]:
     """`bench_one` for every seed of the command line."""
     return [
-        bench_one(name, preset, variant, seed, args.episodes, checkpoints, args.nb_dims, args.ratio)
+        bench_one(
+            name,
+            preset,
+            variant,
+            seed,
+            args.episodes,
+            checkpoints,
+            args.nb_dims,
+            args.ratio,
+            args.harness,
+        )
         for seed in range(args.seeds)
     ]
 
@@ -179,6 +229,13 @@ def main(argv=None) -> int:
         "--ratio", type=float, default=3.0, help="unfeasible: task-space side / learnable side"
     )
     parser.add_argument(
+        "--harness",
+        default="acl3d",
+        choices=list(HARNESSES),
+        help="how the unfeasible toy is played: "
+        + "; ".join(f"{k}: {v}" for k, v in HARNESSES.items()),
+    )
+    parser.add_argument(
         "--reference",
         action="store_true",
         help="also run the original algorithms on the same variants and seeds",
@@ -191,6 +248,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     names = _names(args.teachers, TEACHERS, "teacher", parser)
     variants = _names(args.variants, VARIANTS, "variant", parser)
+    if args.harness != "acl3d" and variants != ["unfeasible"]:
+        parser.error(f"--harness {args.harness} needs --variants unfeasible, got {args.variants}")
     available = []
     for n in names:
         try:
@@ -202,7 +261,12 @@ def main(argv=None) -> int:
     if checkpoints[-1] != args.episodes:
         checkpoints.append(args.episodes)
     presets = list(PRESETS) if args.preset == "all" else [args.preset]
-    standard = args.nb_dims == 2 and args.ratio == 3.0 and args.episodes == 20000
+    standard = (
+        args.nb_dims == 2
+        and args.ratio == 3.0
+        and args.episodes == 20000
+        and args.harness == "acl3d"
+    )
 
     head = " | ".join(f"{c // 1000}k" if c % 1000 == 0 else str(c) for c in checkpoints)
     ref_head = (
@@ -256,7 +320,7 @@ def main(argv=None) -> int:
                 rows.append(row)
     print(
         f"\n{args.seeds} seeds, {args.episodes} episodes, {args.nb_dims} relevant dims, 10 cubes/dim,"
-        f" unfeasible ratio {args.ratio:g}; tDRL references: tDRL defaults, 20k episodes"
+        f" unfeasible ratio {args.ratio:g}, harness {args.harness}; tDRL references: tDRL defaults, 20k episodes"
         " (plain: 5 seeds, unfeasible: 3 seeds)."
     )
     print("\n".join(rows))

@@ -211,3 +211,38 @@ def test_bench_script_quick_run(capsys, monkeypatch):
     assert "±" in cells[-5] and cells[-4].startswith(("+", "-"))
     random_row = next(line for line in out.splitlines() if line.startswith("| plain | random |"))
     assert random_row.rstrip().endswith("| – | – | – | – | – |")  # no original to compare with
+
+
+@pytest.mark.parametrize("harness", ["edge-cubes", "unit-space", "score-ge75"])
+def test_bench_script_harness_variants(capsys, monkeypatch, harness):
+    """The unfeasible toy played as other harnesses might have: each runs acl3d's teacher and
+    the original on the same seeds, and the option refuses variants it does not apply to."""
+    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
+    argv = ["bench_teachers.py", "--seeds", "1", "--episodes", "300", "--teachers", "riac"]
+    argv += ["--preset", "teachdeeprl", "--reference", "--harness", harness]
+    monkeypatch.setattr(sys, "argv", [*argv, "--variants", "unfeasible"])
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_path(str(ROOT / "scripts" / "bench_teachers.py"), run_name="__main__")
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert f"harness {harness}" in out and "| unfeasible | riac | teachdeeprl |" in out
+    monkeypatch.setattr(sys, "argv", [*argv, "--variants", "plain"])
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_path(str(ROOT / "scripts" / "bench_teachers.py"), run_name="__main__")
+    assert exit_info.value.code == 2
+    assert "--harness" in capsys.readouterr().err
+
+
+def test_harness_toys_differ_from_the_toy_where_they_should():
+    """edge-cubes learns out-of-range tasks in the clipped edge cube; score-ge75 counts 75."""
+    bench = runpy.run_path(str(ROOT / "scripts" / "bench_teachers.py"))
+    edge, _, space = bench["make_env"]("unfeasible", 0, 2, 3.0, "edge-cubes")
+    assert space.high.tolist() == [3.0, 3.0]
+    assert edge.episode([0.05, 2.5]) == 0.0  # cube (0, 9): locked
+    edge.competence[0, 8] = 75  # unlock (0, 9) from below
+    assert edge.episode([0.05, 2.5]) == 0.01 and edge.competence[0, 9] == 1
+    env, to_env, unit = bench["make_env"]("unfeasible", 0, 2, 3.0, "unit-space")
+    assert unit.high.tolist() == [1.0, 1.0] and np.allclose(to_env([0.5, 0.1]), [1.5, 0.3])
+    ge, _, _ = bench["make_env"]("unfeasible", 0, 2, 3.0, "score-ge75")
+    ge.competence[0, 0] = 75
+    assert ge.score() == 1.0 and ToyEnv(space_ratio=3.0).score() == 0.0
