@@ -9,8 +9,9 @@ machine drift hits both alike; prints the medians and new/old ratios (> 1: the n
 
     python scripts/bench_compare.py /tmp/acl3d-old --training ppo --rounds 2 --steps 131072
 
-`--training ppo|sac` times, instead, a whole `acl3d.training.train()` run in each checkout (ALP-GMM,
-the student's `fast` preset, default envs, the final evaluation included): steps over the run's
+`--training ppo|sac` times, instead, a whole `acl3d.training.train()` run in each checkout (ALP-GMM
+with expert knowledge high, the student's `fast` preset, 16 batched envs, 25 test tasks, the
+final evaluation included): steps over the run's
 own wall time (the last `wall_time_s` of its evals.csv), and over the process's CPU time (all
 its threads: robust to other load on the machine, blind to how well the threads overlap).
 """
@@ -57,8 +58,10 @@ from acl3d.training import train
 student, steps = sys.argv[1], int(sys.argv[2])
 cpu = time.process_time()
 with tempfile.TemporaryDirectory() as tmp:
+    # every option that decides the work written out (defaults differ between versions)
     train(teacher="alp-gmm", student=student, preset="fast", steps=steps, out=tmp + "/run",
-          seed=0, progress_bar=False, verbose=0)
+          seed=0, n_envs=16, vec_env="batched", expert_knowledge="high", nb_test_episodes=25,
+          progress_bar=False, verbose=0)
     rows = list(csv.DictReader(open(tmp + "/run/evals.csv")))
 cpu = time.process_time() - cpu
 wall, done = float(rows[-1]["wall_time_s"]), int(rows[-1]["step"])
