@@ -277,12 +277,7 @@ class ParkourRules(TrackRules):
         return actions
 
     def episode_state(self, rows: EpisodeRows) -> dict:
-        return {
-            "survival/steps_under_water": int(rows.steps_under_water[0]),
-            "survival/steps_out_of_water": int(rows.steps_out_of_water[0]),
-            "survival/dead": bool(rows.dead[0]),
-            "survival/under_water": bool(rows.under_water[0]),
-        }
+        return {f"survival/{key}": getattr(rows, key)[0].item() for key in SURVIVAL_KEYS}
 
     def check_episode_state(self, state) -> dict:
         env_state.check_keys(state, [f"survival/{key}" for key in SURVIVAL_KEYS])
