@@ -143,7 +143,7 @@ class BatchedEnvs:
         expected = (self.num_envs, self.action_size)
         if a.shape != expected:
             raise ValueError(f"actions: expected shape {expected}, got {a.shape}")
-        if not np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.complexfloating):
+        if a.dtype.kind not in "iuf":  # bools, complex numbers, strings and objects refused
             raise ValueError(f"actions: expected real numbers, got dtype {a.dtype}")
         a = a.astype(np.float64)
         if not np.isfinite(a).all():
@@ -161,7 +161,7 @@ class BatchedEnvs:
             obs, rewards, terminated, unstable = self.rules.step(self.physics, a, self.rows)
             success = self.envs[0].successes(self.rows).tolist()
             infos = [{"success": s} for s in success]
-            for i in np.flatnonzero(unstable):
+            for i in unstable.nonzero()[0]:
                 infos[i]["unstable"] = True
         else:
             rows = self._rows_physics

@@ -108,11 +108,11 @@ class BatchedVectorEnv(VectorEnv):
         obs, rewards, terminated, truncated, infos = self.batch.step(actions)
         resetting = self._autoreset.copy()
         self._returns += rewards
-        for i in np.flatnonzero(resetting):  # NEXT_STEP: ended at the previous step
+        for i in resetting.nonzero()[0]:  # NEXT_STEP: ended at the previous step
             obs[i], infos[i] = self._reset_one(int(i))
             rewards[i], terminated[i], truncated[i] = 0.0, False, False
         done = terminated | truncated
-        for i in np.flatnonzero(done):
+        for i in done.nonzero()[0]:
             infos[i][INFO_KEY] = self._report(int(i), infos[i], terminated[i], truncated[i])
         out = _stack_infos(infos, _all(self.num_envs))
         if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
@@ -120,7 +120,7 @@ class BatchedVectorEnv(VectorEnv):
         elif done.any():
             final_obs = np.empty(self.num_envs, dtype=object)
             final_infos: list[dict] = [{} for _ in range(self.num_envs)]
-            for i in np.flatnonzero(done):
+            for i in done.nonzero()[0]:
                 final_obs[i], final_infos[i] = obs[i].copy(), infos[i]
                 obs[i] = self._reset_one(int(i))[0]
             out["final_obs"], out["_final_obs"] = final_obs, done.copy()
@@ -163,12 +163,15 @@ def _all(n: int) -> np.ndarray:
 def _stack_infos(infos: list[dict], mask: np.ndarray) -> dict:
     """Gymnasium's vector info layout: per key an array over sub-envs and a `_key` mask."""
     out: dict = {}
-    for key in sorted({k for info in infos for k in info}):
+    n = len(infos)
+    for key in sorted(set().union(*infos)):
         values = [info.get(key) for info in infos]
-        dtype = bool if all(isinstance(v, bool) or v is None for v in values) else object
-        arr = np.zeros(len(infos), dtype=dtype)
-        has = np.array([key in info for info in infos]) & mask
-        arr[has] = [values[i] for i in np.flatnonzero(has)]
+        has = np.fromiter([key in info for info in infos], bool, n) & mask
+        if all(type(v) is bool or v is None for v in values):  # every step's "success"
+            arr = np.fromiter(values, bool, n) & has
+        else:
+            arr = np.zeros(n, dtype=object)
+            arr[has] = [values[i] for i in has.nonzero()[0]]
         out[key], out["_" + key] = arr, has
     return out
 

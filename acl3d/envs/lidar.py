@@ -95,42 +95,44 @@ class HeightLineLidar(Lidar):
         self._inv_sin = 1.0 / sin_s
         self._reach = int(np.ceil(ray_range * sin.max() / self._cell)) + 2
         self._terrain_geom = arena.model.geom("terrain").id
+        self._no_hit = np.full(nb_rays, np.inf)
         self._batch_n = 0
 
     def read(self, model, data, origin) -> np.ndarray:
-        return self.read_heights(self.arena.heights, origin)
+        out = self.read_heights(self.arena.heights, origin)
+        self.geom_ids[:] = np.where(out < 1.0, self._terrain_geom, -1)
+        return out
 
     def read_heights(self, heights: np.ndarray, origin: np.ndarray) -> np.ndarray:
-        """The rays from `origin` on the height line `heights` (the grid's columns, or more)."""
+        """The rays from `origin` on the height line `heights` (the grid's columns, or more).
+
+        The step's hot path at N = 1: few numpy calls (hits are a prefix of the rays, because
+        both the running maximum and the rays' slopes increase, so they are sliced, not masked).
+        """
         x0, z0 = float(origin[0]), float(origin[2])
-        j = int((x0 - self._x_min) / self._cell)
-        j = min(max(j, 0), self._ncol - 2)
+        j = min(max(int((x0 - self._x_min) / self._cell), 0), self._ncol - 2)
         frac = (x0 - self._x[j]) / self._cell
         h0 = heights[j] + frac * (heights[j + 1] - heights[j])  # terrain right under the origin
-        out = np.ones(self.nb_rays)
         if z0 <= h0:  # origin inside the terrain: every ray hits at once
-            out[:] = 0.0
-            self.geom_ids[:] = self._terrain_geom
-            return out
+            return np.zeros(self.nb_rays)
         stop = min(j + 1 + self._reach, self._ncol)
         xs = np.concatenate(((x0,), self._x[j + 1 : stop]))
         hs = np.concatenate(((h0,), heights[j + 1 : stop]))
-        rise = np.maximum.accumulate((hs[1:] - z0) / (xs[1:] - x0))
-        k = np.searchsorted(rise, self._slope)  # segment (k, k+1) holds the crossing
-        hit = k < len(rise)
-        dist = np.full(self.nb_rays, np.inf)
-        if hit.any():
-            k = k[hit]
+        rise = (hs[1:] - z0) / (xs[1:] - x0)
+        np.maximum.accumulate(rise, out=rise)
+        k = rise.searchsorted(self._slope)  # segment (k, k+1) holds the crossing
+        hits = int(k.searchsorted(len(rise)))  # k never decreases: the first `hits` rays hit
+        dist = self._no_hit.copy()
+        if hits:
+            k = k[:hits]
+            after = k + 1
             xa, ha = xs[k], hs[k]
-            m = (hs[k + 1] - ha) / (xs[k + 1] - xa)
-            s = self._slope[hit]
+            m = (hs[after] - ha) / (xs[after] - xa)
+            s = self._slope[:hits]
             x_hit = (z0 - ha + m * xa - s * x0) / (m - s)
-            dist[self._slanted[hit]] = (x_hit - x0) * self._inv_sin[hit]
+            dist[self._slanted[:hits]] = (x_hit - x0) * self._inv_sin[:hits]
         dist[self._vertical] = z0 - h0
-        within = dist <= self.range
-        out[within] = dist[within] * self._inv_range
-        self.geom_ids[:] = np.where(within, self._terrain_geom, -1)
-        return out
+        return np.where(dist <= self.range, dist * self._inv_range, 1.0)
 
     def batch_heights(self, n: int) -> np.ndarray:
         """Buffer for `read_batch`: N height lines of the grid's columns, then a -inf margin (the
@@ -156,7 +158,7 @@ class HeightLineLidar(Lidar):
         flat, base, reach = heights.reshape(-1), self._base, self._reach
         x0, z0 = origins[:, 0], origins[:, 2]
         j = ((x0 - self._x_min) / self._cell).astype(np.int64)
-        np.clip(j, 0, self._ncol - 2, out=j)
+        np.minimum(np.maximum(j, 0, out=j), self._ncol - 2, out=j)  # np.clip costs 6x more
         hj, hj1 = flat[base + j], flat[base + j + 1]
         frac = (x0 - self._x[j]) / self._cell
         h0 = hj + frac * (hj1 - hj)

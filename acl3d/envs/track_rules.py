@@ -51,6 +51,15 @@ def touch_sensor_name(geom: str, against: str | None = None) -> str:
     return TOUCH_SENSOR_PREFIX + geom + ("" if against is None else "|" + against)
 
 
+def gather_index(ids: np.ndarray) -> slice | np.ndarray:
+    """`ids` as a slice where they are a contiguous ascending run (indexing then gives a view,
+    not a gathered copy: the step's arithmetic is the same, its numpy calls cheaper), else as is."""
+    ids = np.asarray(ids)
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
+
+
 def torque_use(actions: np.ndarray) -> np.ndarray:
     """(N,) sum of |a| clipped at 1 per env: what the torque cost is proportional to."""
     return np.add.reduce(np.minimum(np.abs(actions), 1.0), axis=1)
@@ -110,11 +119,13 @@ class TrackRules:
         contact_cols = (starts + 2)[bound.has_contact_flag]
         self._motor_order = np.concatenate((starts, starts + 1, contact_cols))
         self._inv_speeds = 1.0 / bound.speeds
-        self._contact_sensors = self._sensor_adr(model, bound.contact_geom_ids)
-        self._critical_sensors = self._sensor_adr(model, bound.critical_geom_ids)
+        self._contact_sensors = gather_index(self._sensor_adr(model, bound.contact_geom_ids))
+        self._critical_sensors = gather_index(self._sensor_adr(model, bound.critical_geom_ids))
+        self._has_critical = len(bound.critical_geom_ids) > 0
+        self._qpos_index = gather_index(bound.qpos_adr)
+        self._qvel_index = gather_index(bound.dof_adr)
         self._lidar_col = self.head_size + bound.motor_state_size + self.grasp_size
-        ids = bound.actuator_ids
-        self._ctrl_index = slice(None) if np.array_equal(ids, np.arange(model.nu)) else ids
+        self._ctrl_index = gather_index(bound.actuator_ids)
         self._nb_motors = len(bound.speeds)
         self._root = bound.root_id
 
@@ -207,8 +218,8 @@ class TrackRules:
         b = self.bound
         out[:, self._motor_order] = np.concatenate(
             (
-                physics.field("qpos")[:, b.qpos_adr] + b.angle_correction,
-                physics.field("qvel")[:, b.dof_adr] * self._inv_speeds,
+                physics.field("qpos")[:, self._qpos_index] + b.angle_correction,
+                physics.field("qvel")[:, self._qvel_index] * self._inv_speeds,
                 self.touched(physics, self._contact_sensors),
             ),
             axis=1,
@@ -264,7 +275,7 @@ class TrackRules:
         reward = shaping - rows.prev_shaping
         rows.prev_shaping[:] = shaping
         reward -= self.body.torque_cost_per_unit * torque_use(actions)
-        if len(self._critical_sensors):
+        if self._has_critical:
             touched = self.touched(physics, self._critical_sensors)
             np.logical_or.reduce(touched, axis=1, out=rows.critical_contact)
         fail = rows.critical_contact | (x < 0.0)

@@ -148,14 +148,14 @@ class BatchedVecEnv(VecEnv):
         dones = terminated | truncated
         subenvs = self.subenvs
         self.returns += rewards
-        for i in np.flatnonzero(dones):
+        for i in dones.nonzero()[0]:
             info = infos[i]
             info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
             info["terminal_observation"] = obs[i].copy()
             subenvs[i].episode_report(info, bool(terminated[i]), bool(truncated[i]))
         if self.task_source is not None:
             self.task_source.episodes_finished(obs, rewards, dones, infos)
-        for i in np.flatnonzero(dones):
+        for i in dones.nonzero()[0]:
             obs[i] = subenvs[i].reset()[0]
         self.last_obs = obs.copy()
         return obs, rewards.astype(np.float32), dones, infos
