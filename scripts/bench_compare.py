@@ -4,7 +4,9 @@
     python scripts/bench_compare.py /tmp/acl3d-old [--rounds 6] [--steps 20000]
 
 Each round times `env.step` (classic biped, Stump Tracks h=1 sp=3, seeded random actions) and
-`env.reset` with a new task in a fresh subprocess per checkout, alternating old and new so that
+`env.reset` with a new task, then the same actions through a batch of one
+(`gymnasium.make_vec(..., num_envs=1, vectorization_mode="vector_entry_point")`, autoresetting as
+each version does by default), in a fresh subprocess per checkout, alternating old and new so that
 machine drift hits both alike; prints the medians and new/old ratios (> 1: the new one is faster).
 
     python scripts/bench_compare.py /tmp/acl3d-old --training ppo --rounds 2 --steps 131072
@@ -47,7 +49,16 @@ start = time.perf_counter()
 for i in range(200):
     env.reset(options={"task": {"stump_height": (i % 30) / 10, "obstacle_spacing": 3.0}})
 reset_ms = (time.perf_counter() - start) / 200 * 1e3
-print(json.dumps({"file": acl3d.__file__, "steps_per_s": step_rate, "reset_ms": reset_ms}))
+import gymnasium as gym
+vec = gym.make_vec("acl3d/StumpTracks-v0", num_envs=1, vectorization_mode="vector_entry_point",
+                   body="classic_bipedal")
+vec.reset(seed=0, options={"task": {"stump_height": 1.0, "obstacle_spacing": 3.0}})
+start = time.perf_counter()
+for action in actions:
+    vec.step(action[None])
+batch_rate = steps / (time.perf_counter() - start)
+print(json.dumps({"file": acl3d.__file__, "steps_per_s": step_rate, "reset_ms": reset_ms,
+                  "batch_of_one_steps_per_s": batch_rate}))
 """
 
 
@@ -99,12 +110,19 @@ def main() -> int:
     for _ in range(args.rounds):
         runs["old"].append(measure(args.old.resolve(), args.steps, args.training))
         runs["new"].append(measure(ROOT, args.steps, args.training))
-    keys = ("steps_per_s", "steps_per_cpu_s") if args.training else ("steps_per_s", "reset_ms")
+    keys = ("steps_per_s", "steps_per_cpu_s")
+    if not args.training:
+        keys = ("steps_per_s", "reset_ms", "batch_of_one_steps_per_s")
+    median = {
+        (tree, key): statistics.median(r[key] for r in runs[tree]) for tree in runs for key in keys
+    }
     for key in keys:
-        old = statistics.median(r[key] for r in runs["old"])
-        new = statistics.median(r[key] for r in runs["new"])
+        old, new = median["old", key], median["new", key]
         ratio = old / new if key == "reset_ms" else new / old
-        print(f"{key:12s} old {old:10.2f}  new {new:10.2f}  new/old speed {ratio:.3f}")
+        print(f"{key:24s} old {old:10.2f}  new {new:10.2f}  new/old speed {ratio:.3f}")
+    if not args.training:
+        ratio = median["new", "batch_of_one_steps_per_s"] / median["old", "steps_per_s"]
+        print(f"batch of one (new) / single env (old): {ratio:.3f}")
     return 0
 
 

@@ -7,7 +7,7 @@ and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded
 Resets go through the sub-env's own `reset`.
 
 The physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs' own models,
-one call per step on its own C threads). Tracks, 3D Terrain and Parkour: the rules' step
+one call per step on its own C threads; a batch of one steps its sub-env's own MjData). Tracks, 3D Terrain and Parkour: the rules' step
 (`TrackRules.step`: observation, reward, termination, sensors, servo caps; Parkour's survival and
 lidar) runs once on (N, ...) arrays, and each sub-env's running episode is its row of the
 batch's `EpisodeRows` (the sub-env holds a view of it); Parkour's water forces and grasps run for
@@ -80,11 +80,13 @@ class BatchedEnvs:
         self.task_space = e.task_space
         self.elapsed = np.zeros(num_envs, dtype=np.int64)
         self.threads = min(threads, num_envs)
-        # every sub-env's physics is one batch (on its own threads), each on the sub-env's model
-        fields = e.rules.physics_fields
-        self.physics = BatchPhysics(
-            [env.model for env in self.envs], e.frame_skip, self.threads, fields
-        )
+        # every sub-env's physics is one batch (on its own threads), each on the sub-env's model;
+        # a batch of one steps its env's own MjData, as the single env does (nothing to copy)
+        if num_envs == 1:
+            self.physics = e.physics
+        else:
+            models = [env.model for env in self.envs]
+            self.physics = BatchPhysics(models, e.frame_skip, self.threads, e.rules.physics_fields)
         self._unsynced = np.zeros(num_envs, dtype=bool)  # rows ahead of the sub-env's MjData
         self.rules = e.rules  # every sub-env's rules compute the same: one steps them all
         # tracks, 3D Terrain and Parkour: one array step; ray-cast lidars: each sub-env's own

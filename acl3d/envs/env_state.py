@@ -98,6 +98,17 @@ class PhysicsState:
         """The one env's MjData (the backend interface's per-simulation access)."""
         return self.data
 
+    def row(self, i: int) -> PhysicsState:
+        """The one simulation as a backend of one env: itself (a batched env of one steps its
+        sub-env's own physics, so its rows need no `load`/`unload`)."""
+        return self
+
+    def load(self, i: int, physics: PhysicsState) -> None:
+        """Nothing to take in: `physics` is this one (see `row`)."""
+
+    def unload(self, i: int, physics: PhysicsState) -> None:
+        """Nothing to write back: `physics` is this one (see `row`)."""
+
     @property
     def step_start(self) -> np.ndarray:
         """The integration state the last step started from (read-only view)."""
