@@ -72,7 +72,8 @@ def batched_rate(n: int, threads: int, steps: int, clock: bool = False) -> tuple
             venv.step(a)
         elapsed = time.perf_counter() - t0
     venv.close()
-    raw = rounds * n / timer.seconds if clock else float("nan")
+    # a batch of one steps its env's own physics, not a `BatchPhysics`: no raw time for it
+    raw = rounds * n / timer.seconds if clock and timer.seconds else float("nan")
     return rounds * n / elapsed, raw
 
 
