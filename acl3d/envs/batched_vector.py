@@ -82,6 +82,9 @@ class BatchedVectorEnv(VectorEnv):
         self._tasks = np.zeros((n, self.task_space.dim), dtype=np.float32)
         self._initial_obs = [None] * n
         self._autoreset = np.zeros(n, dtype=bool)
+        self._next_step = mode == AutoresetMode.NEXT_STEP
+        self._every_env = np.ones(n, dtype=bool)
+        self._every_env.flags.writeable = False
 
     def reset(self, *, seed=None, options=None):
         """`seed`: None, an int s (sub-env i seeded s + i) or one per sub-env; `options`: a dict
@@ -91,7 +94,7 @@ class BatchedVectorEnv(VectorEnv):
         results = [self._reset_one(i, seeds[i], per_env[i]) for i in range(self.num_envs)]
         self._autoreset[:] = False
         infos = [info for _, info in results]
-        return np.stack([obs for obs, _ in results]), _stack_infos(infos, _all(self.num_envs))
+        return np.stack([obs for obs, _ in results]), _stack_infos(infos, self._every_env)
 
     def _reset_one(self, i: int, seed=None, options=None):
         """Reset sub-env i on the task of `options`, else on its task source's next one."""
@@ -106,21 +109,21 @@ class BatchedVectorEnv(VectorEnv):
 
     def step(self, actions):
         obs, rewards, terminated, truncated, infos = self.batch.step(actions)
-        resetting = self._autoreset.copy()
         self._returns += rewards
-        for i in resetting.nonzero()[0]:  # NEXT_STEP: ended at the previous step
+        for i in self._autoreset.nonzero()[0]:  # NEXT_STEP: ended at the previous step
             obs[i], infos[i] = self._reset_one(int(i))
             rewards[i], terminated[i], truncated[i] = 0.0, False, False
         done = terminated | truncated
-        for i in done.nonzero()[0]:
+        ended = done.nonzero()[0]
+        for i in ended:
             infos[i][INFO_KEY] = self._report(int(i), infos[i], terminated[i], truncated[i])
-        out = _stack_infos(infos, _all(self.num_envs))
-        if self.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP:
+        out = _stack_infos(infos, self._every_env)
+        if self._next_step:
             self._autoreset = done
-        elif done.any():
+        elif len(ended):
             final_obs = np.empty(self.num_envs, dtype=object)
             final_infos: list[dict] = [{} for _ in range(self.num_envs)]
-            for i in done.nonzero()[0]:
+            for i in ended:
                 final_obs[i], final_infos[i] = obs[i].copy(), infos[i]
                 obs[i] = self._reset_one(int(i))[0]
             out["final_obs"], out["_final_obs"] = final_obs, done.copy()
@@ -154,10 +157,6 @@ def _autoreset_mode(value) -> AutoresetMode:
     raise validation.fail(
         "autoreset_mode", value, "AutoresetMode.NEXT_STEP or AutoresetMode.SAME_STEP"
     )
-
-
-def _all(n: int) -> np.ndarray:
-    return np.ones(n, dtype=bool)
 
 
 def _stack_infos(infos: list[dict], mask: np.ndarray) -> dict:
