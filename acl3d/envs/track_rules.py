@@ -196,17 +196,17 @@ class TrackRules:
         qv = physics.field("qvel")
         v = self.bound.root_dof
         # nose-up positive (rotation about -y); math.atan2 per element, as a single env
-        out[:, 0] = [math.atan2(a, b) for a, b in zip(r[:, 6].tolist(), r[:, 0].tolist())]
+        out[:, 0] = list(map(math.atan2, r[:, 6].tolist(), r[:, 0].tolist()))
         if self.body.planar:  # 2 omega / 50 is omega / 25 to the bit (2 omega is exact)
-            out[:, 1] = qv[:, v + 2] / 25.0
-            out[:, 2:4] = qv[:, v : v + 2] * _PLANAR_VELOCITY_GAINS
+            np.divide(qv[:, v + 2], 25.0, out=out[:, 1])
+            np.multiply(qv[:, v : v + 2], _PLANAR_VELOCITY_GAINS, out=out[:, 2:4])
         else:
             out[:, 2] = 0.12 * qv[:, v]
             omega = physics.field("cvel")[:, root]  # world angular velocity first
             out[:, 1] = -2.0 * omega[:, 1] / 50.0
             out[:, 3] = 0.08 * qv[:, v + 2]
-            out[:, 4] = [math.atan2(a, b) for a, b in zip(r[:, 7].tolist(), r[:, 8].tolist())]
-            out[:, 5] = [math.atan2(a, b) for a, b in zip(r[:, 3].tolist(), r[:, 0].tolist())]
+            out[:, 4] = list(map(math.atan2, r[:, 7].tolist(), r[:, 8].tolist()))
+            out[:, 5] = list(map(math.atan2, r[:, 3].tolist(), r[:, 0].tolist()))
             out[:, 6] = 0.12 * qv[:, v + 1]
             out[:, 7] = 2.0 * omega[:, 0] / 50.0
             out[:, 8] = 2.0 * omega[:, 2] / 50.0
