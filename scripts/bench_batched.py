@@ -8,9 +8,9 @@ Total env steps/s with uniform random actions (classic biped, Stump Tracks h=1 s
 (its resets of finished sub-envs are timed, as a user sees them), measured in interleaved rounds
 in this run (best round per cell); a batched cell's ratio is the median over rounds of its rate
 over one `gymnasium.make` env timed right before it (the machine's speed may drift between
-cells). "per-env /
-raw physics" is the vector env's wall time per env step (threads=1) over the time the physics
-step itself (`BatchPhysics.step`: MuJoCo's batch, same models, same states) took for those steps.
+cells). "per-env / raw physics" is the vector env's wall time per env step (threads=1) over the
+time the physics step itself (`BatchPhysics.step`: MuJoCo's batch, same models, same states)
+took for those steps.
 SubprocVecEnv (forkserver, N workers) is skipped above --max-subproc workers.
 """
 

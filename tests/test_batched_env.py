@@ -88,6 +88,42 @@ def test_parkour_with_water_matches_single_envs(body):
     )
 
 
+@pytest.mark.parametrize(
+    "env_id, kw",
+    [
+        ("acl3d/StumpTracks-v0", {"task": {"stump_height": 1.5, "obstacle_spacing": 1.0}}),
+        ("acl3d/Parkour-v0", {"task": PARKOUR_WATER, "body": "climbing_profile_chimpanzee"}),
+    ],
+)
+def test_a_batch_of_one_matches_a_single_env(env_id, kw):
+    """A batch of one steps its sub-env's own physics instead of MuJoCo's batch."""
+    assert_matches_single_envs(env_id, 1, 1, 80, limit=40, mode=AutoresetMode.NEXT_STEP, **kw)
+
+
+def test_state_moves_between_a_batch_of_one_and_a_batch():
+    one, two = BatchedVecEnv("stump-tracks", 1), BatchedVecEnv("stump-tracks", 2, threads=2)
+    one.seed(3)
+    one.reset()
+    two.reset()
+    rng = np.random.default_rng(1)
+    for _ in range(12):
+        one.step(rng.uniform(-1, 1, (1, 4)))
+    two.env_method("set_state", one.env_method("get_state")[0], indices=[1])
+    for _ in range(25):
+        actions = rng.uniform(-1, 1, (2, 4))
+        o1, r1, d1, _ = one.step(actions[1:])
+        o2, r2, d2, _ = two.step(actions)
+        np.testing.assert_array_equal(o1[0], o2[1])
+        assert (r1[0], d1[0]) == (r2[1], d2[1])
+    one.env_method("set_state", two.env_method("get_state")[0], indices=[0])
+    for _ in range(25):
+        actions = rng.uniform(-1, 1, (2, 4))
+        o1, r1, _, _ = one.step(actions[:1])
+        o2, r2, _, _ = two.step(actions)
+        np.testing.assert_array_equal(o1[0], o2[0])
+        assert r1[0] == r2[0]
+
+
 def test_make_vec_declares_next_step_autoreset_and_seeds_per_env():
     vec = gym.make_vec("acl3d/StumpTracks-v0", num_envs=3, vectorization_mode="vector_entry_point")
     assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP

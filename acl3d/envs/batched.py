@@ -7,8 +7,8 @@ and RNG stream, so sub-env i seeded s + i plays exactly what a single env seeded
 Resets go through the sub-env's own `reset`.
 
 The physics of all sub-envs is one `BatchPhysics` (`mujoco.batch` on the sub-envs' own models,
-one call per step on its own C threads; a batch of one steps its sub-env's own MjData). Tracks, 3D Terrain and Parkour: the rules' step
-(`TrackRules.step`: observation, reward, termination, sensors, servo caps; Parkour's survival and
+one call per step on its own C threads; a batch of one steps its sub-env's own MjData). Tracks,
+3D Terrain and Parkour: the rules' step (`TrackRules.step`: observation, reward, termination, sensors, servo caps; Parkour's survival and
 lidar) runs once on (N, ...) arrays, and each sub-env's running episode is its row of the
 batch's `EpisodeRows` (the sub-env holds a view of it); Parkour's water forces and grasps run for
 the envs that need them on their row of the batch. Ray-cast lidars (MuJoCo's rays): each
