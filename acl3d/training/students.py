@@ -1,16 +1,12 @@
 """Students: Stable-Baselines3 SAC and PPO with TeachMyAgent's settings or a CPU-friendly
 preset, and any other Stable-Baselines3 algorithm with its own hyperparameters.
 
-`benchmark` follows TeachMyAgent §4.4 as closely as SB3 allows (deviations are listed in the
-docs: SB3's SAC has no separate V network and updates every 10 steps instead of at episode end;
-SB3's PPO has separate policy/value MLPs instead of a shared trunk). `fast` keeps the same
-algorithms with small networks and short rollouts so a CPU run shows learning within minutes.
-
 Other algorithms are named "sb3:TD3" (any algorithm class of `stable_baselines3`) or
 "package.module:Class" (any `BaseAlgorithm` subclass, e.g. from sb3-contrib). The preset sets
 only their network (`benchmark` 400-300, `fast` 64-64); everything else is the algorithm's own
 default unless given in `student_params`, checked against its constructor. `action_noise_std`
 adds Gaussian exploration noise to the algorithms that take an `action_noise` (TD3, DDPG).
+The presets' values and the checks of every hyperparameter are in `student_presets`.
 """
 
 from __future__ import annotations
@@ -26,7 +22,7 @@ import gymnasium
 import numpy as np
 import stable_baselines3
 import torch
-from stable_baselines3 import PPO, SAC
+from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -34,6 +30,7 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from acl3d import validation as check
+from acl3d.training import student_presets as presets
 from acl3d.training.exclusion import (
     ExcludingPPO,
     ExcludingReplayBuffer,
@@ -41,80 +38,11 @@ from acl3d.training.exclusion import (
     ExcludingSAC,
 )
 
+PRESETS = presets.PRESETS
 STUDENTS: tuple[str, ...] = ("sac", "ppo")  # with presets; "sb3:TD3", "pkg.mod:Class" too
-PRESETS: tuple[str, ...] = ("benchmark", "fast")
 
 # SB3's SAC and PPO, unless their buffer excludes transitions (acl3d.training.exclusion)
 _ALGOS = {"sac": ExcludingSAC, "ppo": ExcludingPPO}
-MANY_ENVS = 16  # from this many envs on, the fast presets use bigger collections
-
-
-def _sac(preset: str, n_envs: int) -> dict[str, Any]:
-    if preset == "benchmark":
-        # SpinningUp SAC v0.1.1: 400-300 ReLU, alpha 0.005 fixed, polyak 0.995, start_steps 10k,
-        # one gradient step per 10 environment steps.
-        return {
-            "policy_kwargs": {"net_arch": [400, 300], "activation_fn": "relu"},
-            "learning_rate": 1e-3,
-            "batch_size": 1000,
-            "buffer_size": 2_000_000,
-            "ent_coef": 0.005,
-            "tau": 0.005,
-            "gamma": 0.99,
-            "learning_starts": 10_000,
-            "train_freq": 10,
-            "gradient_steps": n_envs,
-        }
-    # fast: a learned entropy coefficient and RL Zoo's BipedalWalker SAC rates (lr 7.3e-4,
-    # gamma 0.98, tau 0.02); with the fixed 0.005 of the benchmark it learned to stand, not walk
-    return {
-        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "relu"},
-        "learning_rate": 7.3e-4,
-        "batch_size": 256,
-        "buffer_size": 300_000,
-        "ent_coef": "auto",
-        "tau": 0.02,
-        "gamma": 0.98,
-        "learning_starts": 1_000,
-        "train_freq": 4,
-        "gradient_steps": n_envs,
-    }
-
-
-def _ppo(preset: str, n_envs: int) -> dict[str, Any]:
-    # Both presets share OpenAI Baselines ppo2's loss settings as run by TeachMyAgent.
-    common = {
-        "learning_rate": 3e-4,
-        "clip_range": 0.2,
-        "vf_coef": 0.5,
-        "ent_coef": 0.0,
-        "gamma": 0.99,
-        "gae_lambda": 0.95,
-        "max_grad_norm": 0.5,
-    }
-    if preset == "benchmark":
-        # TeachMyAgent: 20k steps per update (split over the workers), minibatches of 1000, 5 epochs.
-        return {
-            **common,
-            "policy_kwargs": {"net_arch": [400, 300], "activation_fn": "tanh"},
-            "n_steps": max(1, 20_000 // n_envs),
-            "batch_size": 1000,
-            "n_epochs": 5,
-        }
-    # fast: 2048-step rollouts in minibatches of 256; from 16 envs on (the batched env's
-    # default) 256 steps per env in minibatches of 512, i.e. half the gradient steps per sample:
-    # on 2 cores the flat track is mastered in less wall time that way (docs/benchmarks.md, sanity run)
-    many = n_envs >= MANY_ENVS
-    return {
-        **common,
-        "policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"},
-        "n_steps": 256 if many else max(1, 2048 // n_envs),
-        "batch_size": 512 if many else 256,
-        "n_epochs": 10,
-    }
-
-
-_ACTIVATIONS = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh, "elu": torch.nn.ELU}
 
 
 def spec(student) -> str:
@@ -189,11 +117,11 @@ def hyperparameters(student: str, preset: str, n_envs: int, overrides=None) -> d
     `overrides` replaces top-level keys (e.g. `{"buffer_size": 100000}`); unknown keys fail.
     """
     check_student(student, preset)
-    if student in _ALGOS:
-        params = _sac(preset, n_envs) if student == "sac" else _ppo(preset, n_envs)
-        accepted = set(params) | _EXTRA_KEYS[student]
+    if student in presets.PRESET_PARAMS:
+        params = presets.PRESET_PARAMS[student](preset, n_envs)
+        accepted = set(params) | presets.EXTRA_KEYS[student]
     else:
-        params = _network(preset)
+        params = presets.network(preset)
         accepted = _constructor_keys(algorithm_class(student))
     for key, value in (overrides or {}).items():
         if key not in params and key not in accepted:
@@ -201,88 +129,8 @@ def hyperparameters(student: str, preset: str, n_envs: int, overrides=None) -> d
                 f"unknown student parameter {key!r} for {student}; valid: {sorted(accepted)}"
             )
         params[key] = value
-    _check_values(params, n_envs)
-    _check_consistency(student, params, n_envs)
+    presets.check_params(student, params, n_envs)
     return params
-
-
-# Upper bounds that keep a run's buffers in memory (TeachMyAgent's largest: 2e6 transitions)
-MAX_BUFFER_SIZE = 50_000_000
-MAX_ROLLOUT = 10_000_000  # PPO's n_steps x n_envs
-MAX_LAYER = 65_536  # units per hidden layer
-
-
-def _check_values(params: dict, n_envs: int) -> None:
-    """Each hyperparameter's type and range, before SB3 or torch sees it (they would fail late,
-    or not at all: a negative learning rate is accepted by SB3 and refused by torch's optimiser)."""
-    name = "student_params[{!r}]".format
-    for key, value in params.items():
-        if key in _POSITIVE_REALS:
-            check.positive(name(key), value)
-        elif key in _NON_NEGATIVE_REALS:
-            check.positive(name(key), value, allow_zero=True)
-        elif key in _UNIT_REALS:
-            check.real(name(key), value, 0.0, 1.0)
-        elif key in _COUNTS:
-            check.count(name(key), value, minimum=_COUNTS[key], allow_float=True)
-        elif key in _BOOLS:
-            check.flag(name(key), value)
-        elif key in _OPTIONAL_POSITIVE_REALS and value is not None:
-            check.positive(name(key), value)
-    _check_ranges(params, n_envs, name)
-
-
-def _check_ranges(params: dict, n_envs: int, name) -> None:
-    if "buffer_size" in params:
-        check.integer(name("buffer_size"), params["buffer_size"], 1, MAX_BUFFER_SIZE)
-    if "n_steps" in params and int(params["n_steps"]) * n_envs > MAX_ROLLOUT:
-        raise check.fail(
-            name("n_steps"),
-            params["n_steps"],
-            f"n_steps x n_envs <= {MAX_ROLLOUT} (n_envs={n_envs})",
-        )
-    if "gradient_steps" in params and params["gradient_steps"] != -1:
-        check.count(name("gradient_steps"), params["gradient_steps"], minimum=1)
-    ent = params.get("ent_coef", 0.0)
-    if not (isinstance(ent, str) and (ent == "auto" or ent.startswith("auto_"))):
-        check.real(name("ent_coef"), ent, 0.0)
-    freq = params.get("train_freq", 1)
-    if isinstance(freq, (list, tuple)):
-        if len(freq) != 2 or freq[1] not in ("step", "episode"):
-            raise check.fail(name("train_freq"), freq, 'N, [N, "step"] or [N, "episode"]')
-        freq = freq[0]
-    check.count(name("train_freq"), freq)
-    kwargs = params.get("policy_kwargs")
-    if not isinstance(kwargs, dict):
-        raise check.fail(name("policy_kwargs"), kwargs, "a mapping (net_arch, activation_fn)")
-    arch = kwargs.get("net_arch", [])
-    layers = [arch] if isinstance(arch, int) else arch
-    if isinstance(layers, dict):
-        layers = [n for v in layers.values() for n in (v if isinstance(v, list) else [v])]
-    if not isinstance(layers, list) or not all(
-        check.is_real(n) and isinstance(n, int) and 1 <= n <= MAX_LAYER for n in layers
-    ):
-        raise check.fail(
-            "student_params['policy_kwargs']['net_arch']",
-            arch,
-            f"a list of layer sizes in [1, {MAX_LAYER}] (or {{'pi': [...], 'vf': [...]}})",
-        )
-
-
-_POSITIVE_REALS = ("learning_rate", "clip_range", "max_grad_norm")
-_NON_NEGATIVE_REALS = ("vf_coef",)
-_OPTIONAL_POSITIVE_REALS = ("target_kl", "clip_range_vf")
-_UNIT_REALS = ("gamma", "gae_lambda", "tau")
-_COUNTS = {"batch_size": 1, "n_steps": 1, "n_epochs": 1, "learning_starts": 0,
-           "target_update_interval": 1}  # fmt: skip
-_BOOLS = ("normalize_advantage", "optimize_memory_usage", "use_sde")
-
-
-def _network(preset: str) -> dict[str, Any]:
-    """The preset's network for algorithms without a tuned preset."""
-    if preset == "benchmark":
-        return {"policy_kwargs": {"net_arch": [400, 300], "activation_fn": "relu"}}
-    return {"policy_kwargs": {"net_arch": [64, 64], "activation_fn": "tanh"}}
 
 
 # set by acl3d itself (build) or meaningless in a run: not student parameters
@@ -318,31 +166,6 @@ def collection_steps(student: str, params: dict, n_envs: int) -> int:
     return int(freq) * n_envs
 
 
-_EXTRA_KEYS = {
-    "sac": {"target_update_interval", "optimize_memory_usage", "use_sde"},
-    "ppo": {"normalize_advantage", "target_kl", "clip_range_vf", "use_sde"},
-}
-
-
-def _check_consistency(student: str, params: dict, n_envs: int) -> None:
-    if student == "ppo":
-        rollout = int(params["n_steps"]) * n_envs
-        if int(params["batch_size"]) > rollout:
-            raise ValueError(
-                f"ppo batch_size ({params['batch_size']}) must be <= n_steps x n_envs "
-                f"({params['n_steps']} x {n_envs} = {rollout})"
-            )
-    elif student == "sac":
-        if int(params["buffer_size"]) < int(params["batch_size"]):
-            raise ValueError(
-                f"sac buffer_size ({params['buffer_size']}) must be >= batch_size "
-                f"({params['batch_size']})"
-            )
-    act = params["policy_kwargs"].get("activation_fn")
-    if isinstance(act, str) and act not in _ACTIVATIONS:
-        raise ValueError(f"activation_fn {act!r} unknown; valid: {', '.join(_ACTIVATIONS)}")
-
-
 def uses_vecnormalize(student: str) -> bool:
     """TeachMyAgent normalises observations and returns for PPO (clip 10); acl3d does it for
     every on-policy algorithm (A2C too), as RL Zoo does on MuJoCo tasks."""
@@ -368,7 +191,7 @@ def build(
     policy_kwargs = dict(kwargs.pop("policy_kwargs"))
     act = policy_kwargs.get("activation_fn")
     if isinstance(act, str):
-        policy_kwargs["activation_fn"] = _ACTIVATIONS[act]
+        policy_kwargs["activation_fn"] = presets.ACTIVATIONS[act]
     noise_std = kwargs.pop("action_noise_std", None)
     if noise_std is not None:
         size = env.action_space.shape[0]
@@ -421,13 +244,6 @@ def detect(path) -> str:
         f"{str(path)!r}: not a Stable-Baselines3 algorithm's model; valid students: "
         f"{', '.join(STUDENTS)} or sb3:NAME"
     )
-
-
-def algorithm_name(model: BaseAlgorithm) -> str:
-    for name, cls in (("sac", SAC), ("ppo", PPO)):
-        if isinstance(model, cls):
-            return name
-    raise ValueError(f"unsupported model type {type(model).__name__}; valid: SAC, PPO")
 
 
 def value_estimator(model: BaseAlgorithm, normalize_obs=None):
