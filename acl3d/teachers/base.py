@@ -48,7 +48,8 @@ class Teacher(ABC):
     """Base class of all teachers: what a teacher must and may do is declared here, and the
     training loop reads these declarations (it never inspects a teacher's methods or name).
 
-    Must implement `_sample()`. May implement `_episodic_update`, `_step_update` (called only
+    Must implement `_sample()`. May implement `_sample_batch` / `_update_batch` (the batched
+    calls; by default a loop over `_sample` / `_episodic_update`), `_episodic_update`, `_step_update` (called only
     with "step_rewards" in `needs`), `_record_initial_state` ("initial_states"),
     `_is_exploratory` (with `marks_exploratory`), `_non_exploratory_sample`,
     `_extra_state` / `_load_extra_state` (exact resume) and `plot_state`. The public methods
@@ -80,6 +81,21 @@ class Teacher(ABC):
             return {"initial_dist": facts.initial_dist}
         return {}
 
+    @classmethod
+    def toy_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """Constructor arguments this teacher needs on a toy problem (`acl3d.toy`: one-step
+        episodes, returns in [0, 1], 0 where nothing can be learned; its facts in
+        `facts.profile`), beyond what `run_params` gives every run. Override where needed."""
+        return {}
+
+    @classmethod
+    def plot_history(cls, bk: dict, low: np.ndarray, high: np.ndarray, steps: np.ndarray):
+        """[(episodes seen, plot_state dict)] in time order, rebuilt from a dumped book-keeping
+        `bk` (`dump()`) over the task box [low, high]; `steps`: the environment step at which
+        each episode ended. [] for a teacher that keeps no such history (see
+        `acl3d.teachers.histories`)."""
+        return []
+
     def __init__(self, task_space, seed: int | None = None):
         self.task_space = TaskSpace.coerce(task_space)
         self.mins = self.task_space.low
@@ -107,6 +123,33 @@ class Teacher(ABC):
         is_success = validation.flag("is_success", is_success)
         self._episodic_update(task, reward, is_success)
         self.nb_episodes += 1
+
+    def sample_tasks(self, n: int) -> np.ndarray:
+        """Propose `n` tasks at once ((n, dim) float32): what a vector of worlds resetting
+        together asks for. Reproducible from the seed; with n = 1 the same draw as
+        `sample_task()`, with n > 1 not necessarily the same as n single calls (a vectorised
+        teacher draws each quantity for the whole batch)."""
+        n = validation.count("n", n, minimum=0)
+        if n == 0:
+            return np.zeros((0, self.dim), dtype=np.float32)
+        return np.asarray(self._sample_batch(n), dtype=np.float32).reshape(n, self.dim)
+
+    def update_batch(self, tasks, returns, successes=None) -> None:
+        """Learn from M finished episodes at once: (M, dim) tasks, (M,) returns, (M,) success
+        flags (None: none succeeded), in the order they finished. The whole batch is checked
+        before the teacher changes; the result equals M `episodic_update` calls in that order."""
+        tasks = validation.real_array("tasks", tasks)
+        if tasks.ndim != 2 or tasks.shape[1] != self.dim:
+            raise validation.fail("tasks", tasks.shape, f"an (M, {self.dim}) array")
+        self._check_sane("tasks", tasks)
+        m = len(tasks)
+        returns = validation.real_array("returns", returns, shape=(m,))
+        if np.any(np.abs(returns) > MAX_ABS_RETURN):
+            raise validation.fail("returns", returns, f"values within +-{MAX_ABS_RETURN:g}")
+        successes = np.zeros(m, bool) if successes is None else np.asarray(successes)
+        if successes.shape != (m,) or successes.dtype.kind not in "bi" or np.any(successes > 1):
+            raise validation.fail("successes", successes, f"({m},) bools")
+        self._update_batch(tasks, returns, successes.astype(bool))
 
     def step_update(self, state, action, reward, next_state, done, stream: int = 0) -> None:
         """One environment step of the episode running on `stream` (an env index: episodes of
@@ -142,6 +185,10 @@ class Teacher(ABC):
 
     def is_non_exploratory_task_sampling_available(self) -> bool:
         return True
+
+    def plot_state(self) -> dict[str, Any] | None:
+        """The current distribution for plots (`acl3d.teachers.plots`); None: tasks only."""
+        return None
 
     def dump(self) -> dict[str, list]:
         """The teacher's book-keeping (merged into the run's teacher dump)."""
@@ -181,6 +228,17 @@ class Teacher(ABC):
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
         pass
+
+    def _sample_batch(self, n: int) -> np.ndarray:
+        """(n, dim) tasks; override where the draws vectorise (keep n = 1 equal to `_sample`)."""
+        return np.stack([np.asarray(self._sample()).reshape(self.dim) for _ in range(n)])
+
+    def _update_batch(self, tasks: np.ndarray, returns: np.ndarray, successes: np.ndarray):
+        """Checked episodes in order; a loop, as most teachers' updates depend on the order
+        (a nearest neighbour, a region split, a buffer). Override where they do not."""
+        for task, ret, success in zip(tasks, returns, successes):
+            self._episodic_update(task, float(ret), bool(success))
+            self.nb_episodes += 1
 
     def _step_update(
         self, state, action, reward: float, next_state, done: bool, stream: int
@@ -222,15 +280,19 @@ class Teacher(ABC):
     def _check_task(self, task) -> np.ndarray:
         """A finite task of the right length, within SANE_TASK_MARGIN ranges of the bounds."""
         arr = validation.real_array("task", task, shape=(self.dim,))
+        self._check_sane("task", arr)
+        return arr
+
+    def _check_sane(self, name: str, arr: np.ndarray) -> None:
+        """Task(s) `arr` (last axis: dim) within SANE_TASK_MARGIN ranges of the bounds."""
         margin = SANE_TASK_MARGIN * np.maximum(self.maxs - self.mins, 1.0)
         if np.any(arr < self.mins - margin) or np.any(arr > self.maxs + margin):
             raise validation.fail(
-                "task",
-                task,
+                name,
+                arr.tolist(),
                 f"{self.dim} values for {list(self.task_space.names)} within"
                 f" {SANE_TASK_MARGIN:g} ranges of the bounds {self.mins.tolist()} .. {self.maxs.tolist()}",
             )
-        return arr
 
     @staticmethod
     def _check_scalar(what: str, value) -> float:

@@ -17,3 +17,10 @@ class RandomTeacher(Teacher):
 
     def _sample(self) -> np.ndarray:
         return self.uniform_task()
+
+    def _sample_batch(self, n: int) -> np.ndarray:
+        # one (n, dim) draw consumes the stream as n single draws do: the same tasks
+        return self.rng.uniform(self.mins, self.maxs, size=(n, self.dim))
+
+    def _update_batch(self, tasks, returns, successes) -> None:
+        self.nb_episodes += len(tasks)
