@@ -16,8 +16,9 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from acl3d.cli import main
+from acl3d.run_format.tables import read_csv
 from acl3d.training import students, train
-from acl3d.training.run_dir import RunDir, read_csv
+from acl3d.training.run_dir import RunDir
 
 STEPS = 1024
 RUN = dict(

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from acl3d.run_format.tables import read_csv
 from acl3d.training import students
-from acl3d.training.run_dir import read_csv
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "scripts" / "examples"
 

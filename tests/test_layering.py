@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1] / "acl3d"
 
 # Lowest first. "acl3d" is the package's own __init__: it registers the environments.
 TIERS: tuple[tuple[str, ...], ...] = (
-    ("validation", "assets", "rendering", "video", "overlay"),
-    ("task_space",),
+    ("validation", "assets", "rendering", "video", "overlay", "atomic_files"),
+    ("task_space", "run_format"),
     ("curriculum_profile",),
     ("terrain", "bodies", "teachers", "toy", "playback"),
     ("envs",),
@@ -162,6 +162,43 @@ def test_teachers_name_no_environment():
         if any(name in text.lower() for name in names)
     ]
     assert not bad, f"environment names in teacher code: {bad}"
+
+
+def _compared_strings(path: Path):
+    """String constants a module compares with (==, in, ...), uses as dict keys or matches."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            items = [
+                e for c in sides if isinstance(c, (ast.Tuple, ast.List, ast.Set)) for e in c.elts
+            ]
+            consts = [*sides, *items]
+        elif isinstance(node, ast.Dict):
+            consts = [k for k in node.keys if k is not None]
+        elif isinstance(node, ast.MatchValue):
+            consts = [node.value]
+        else:
+            continue
+        yield from (
+            (node.lineno, c.value)
+            for c in consts
+            if isinstance(c, ast.Constant) and isinstance(c.value, str)
+        )
+
+
+def test_only_teachers_test_a_teachers_name():
+    """What a teacher needs elsewhere (plots, the toy, the training loop) it declares on its class;
+    no module outside acl3d/teachers branches on its name."""
+    from acl3d.teachers import TEACHERS
+
+    bad = [
+        f"{path.relative_to(ROOT)}:{line}: {text!r}"
+        for path in sorted(ROOT.rglob("*.py"))
+        if "teachers" not in path.relative_to(ROOT).parts
+        for line, text in _compared_strings(path)
+        if text in TEACHERS
+    ]
+    assert not bad, f"teacher names tested outside acl3d/teachers: {bad}"
 
 
 def test_no_import_cycles():

@@ -21,6 +21,7 @@ import pytest
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from acl3d import atomic_files
 from acl3d.cli import build_parser, main
 from acl3d.cli.train import options_from_args
 from acl3d.teachers.base import load_state
@@ -153,6 +154,7 @@ def test_fault_while_writing_a_checkpoint_leaves_a_resumable_run(
     and resuming from it is exact."""
     disk = FaultyDisk(np.random.default_rng(trial))
     monkeypatch.setattr(run_dir_module, "fsync_path", disk.fsync)
+    monkeypatch.setattr(atomic_files, "fsync_path", disk.fsync)  # LATEST's write
     monkeypatch.setattr(RunDir, "write_checkpoint", lambda run, *a: disk.write_checkpoint(run, *a))
     args = build_parser().parse_args(["train", *COMMON, *SETUPS["sac-1"]])
     out = tmp_path / "faulty"

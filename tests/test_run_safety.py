@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from acl3d import atomic_files
 from acl3d.cli import main
 from acl3d.training import TrainConfig, students
-from acl3d.training import run_dir as run_dir_module
 from acl3d.training.run_dir import DamagedCheckpoint, RunDir
 from acl3d.training.session import Session, verify_checkpoint
 
@@ -285,7 +285,7 @@ def test_a_failed_status_write_leaves_no_temporary_file(copy, monkeypatch):
     def full(tmp, path):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp))
 
-    monkeypatch.setattr(run_dir_module, "atomic_replace", full)
+    monkeypatch.setattr(atomic_files, "atomic_replace", full)
     before = snapshot(run)
     with pytest.raises(OSError):
         RunDir(run).set_status("crashed")

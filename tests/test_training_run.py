@@ -13,10 +13,11 @@ import yaml
 from gl_support import require_offscreen_gl
 
 from acl3d.cli import main
+from acl3d.run_format.tables import read_csv
 from acl3d.teachers.base import load_state
 from acl3d.training import TrainConfig, train
 from acl3d.training.curriculum import WorkerError
-from acl3d.training.run_dir import RunDir, read_csv
+from acl3d.training.run_dir import RunDir
 
 # Short episodes and small PPO rollouts keep a real training run to a few seconds.
 FAST = [

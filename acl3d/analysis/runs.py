@@ -3,19 +3,23 @@
 A run directory is any folder under the root holding `config.yaml` and `evals.csv`. Its labels
 (teacher, env, body, student, expert knowledge, seed) come from the run's own config, completed
 (criterion, variant) by the `campaign.yaml` of the campaign holding it, wherever it sits under
-the root (several campaigns can be analysed together). Only files are
-read: this package imports nothing from training or the environments.
+the root (several campaigns can be analysed together). Only files are read, through
+`acl3d.run_format`: this package imports nothing from training or the environments.
 """
 
 from __future__ import annotations
 
 import csv
-import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
+
+from acl3d.run_format import documents, layout
+from acl3d.run_format.status import read_status
+from acl3d.run_format.tables import TornTable, read_csv
 
 CONFIG_LABELS = ("teacher", "env", "body", "student", "expert_knowledge", "seed")
 # Labels that tell conditions' cells apart (the teacher is the compared condition).
@@ -41,11 +45,13 @@ class Run:
 
 
 def _read_evals(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    with path.open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    steps = np.array([int(float(r["step"])) for r in rows], dtype=np.int64)
-    metrics = {m: np.array([float(r[m]) for r in rows]) for m in METRICS if rows and m in rows[0]}
-    return steps, metrics
+    """Steps and metrics of an evals.csv; a torn row or a missing column is a ValueError naming
+    the file (its values are never used)."""
+    cols = read_csv(path, strict=True)
+    if "step" not in cols:
+        raise TornTable(f"{path} has no 'step' column")
+    steps = np.array(cols["step"], dtype=np.int64)
+    return steps, {m: np.array(cols[m]) for m in METRICS if m in cols}
 
 
 def _manifest_labels(root: Path) -> dict[Path, dict]:
@@ -59,31 +65,45 @@ def _manifest_labels(root: Path) -> dict[Path, dict]:
 
 
 def _status(path: Path) -> str:
-    try:
-        return json.loads((path / "status.json").read_text()).get("status", "unknown")
-    except (OSError, json.JSONDecodeError):
-        return "unknown"
+    status = read_status(path)
+    return "unknown" if status is None else status.status
+
+
+def _read_run(path: Path, name: str, labels: dict) -> Run | None:
+    """The run in `path`, None when it has no evaluation yet; ValueError naming a file that
+    cannot be read."""
+    evals = path / layout.EVALS
+    if not evals.exists():
+        raise ValueError(f"{evals} is missing")
+    steps, metrics = _read_evals(evals)
+    if steps.size == 0:
+        return None
+    saved = documents.read_doc(path).get("config") or {}
+    if not isinstance(saved, dict):
+        raise ValueError(f"{path / layout.CONFIG_YAML}: its 'config' section is not a mapping")
+    own = {k: saved.get(k) for k in CONFIG_LABELS if k in saved}
+    return Run(name, path, {**own, **labels}, _status(path), steps, metrics)
 
 
 def load_runs(root) -> list[Run]:
-    """Every run directory under `root` with at least one evaluation, sorted by name."""
+    """Every run directory under `root` with at least one evaluation, sorted by name. A run
+    whose files cannot be read (a torn or missing evals.csv, a broken config.yaml) is skipped
+    with a warning on stderr naming it and the file."""
     root = Path(root)
     if not root.is_dir():
         raise ValueError(f"{str(root)!r} is not a directory")
     from_manifest = _manifest_labels(root)
     runs = []
-    for config in sorted(root.rglob("config.yaml")):
+    for config in sorted(root.rglob(layout.CONFIG_YAML)):
         path = config.parent
-        if not (path / "evals.csv").exists():
-            continue
-        steps, metrics = _read_evals(path / "evals.csv")
-        if steps.size == 0:
-            continue
-        saved = (yaml.safe_load(config.read_text()) or {}).get("config", {})
-        labels = {k: saved.get(k) for k in CONFIG_LABELS if k in saved}
-        labels.update(from_manifest.get(path.resolve(), {}))
         name = str(path.relative_to(root)) if path != root else path.name
-        runs.append(Run(name, path, labels, _status(path), steps, metrics))
+        try:
+            run = _read_run(path, name, from_manifest.get(path.resolve(), {}))
+        except (OSError, ValueError) as exc:
+            print(f"[acl3d] skipping run {name}: {exc}", file=sys.stderr)
+            continue
+        if run is not None:
+            runs.append(run)
     if not runs:
         raise ValueError(f"no run directory with evaluations (evals.csv) under {str(root)!r}")
     return runs

@@ -1,18 +1,21 @@
 """What a campaign knows about one of its runs, read from the run directory alone.
 
-The run directory is the single source of truth (status.json, checkpoints/LATEST, episodes.csv,
-evals.csv), so `campaign status` works from another shell and a restarted campaign picks up
-exactly where the killed one stopped. The campaign adds two things to each run directory:
+The run directory is the single source of truth (status.json, checkpoints/, episodes.csv and
+evals.csv, read through `acl3d.run_format`), so `campaign status` works from another shell and a
+restarted campaign picks up exactly where the killed one stopped. The campaign adds two things to each run directory:
 `campaign.log` (the run's output over all attempts) and `failures/attempt_K.txt` (the traceback
 of each failed attempt).
 """
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
+
+from acl3d.run_format import layout
+from acl3d.run_format.checkpoints import checkpoint_step, resume_candidates
+from acl3d.run_format.status import read_status
+from acl3d.run_format.tables import last_row
 
 LOG_NAME = "campaign.log"
 FAILURES = "failures"
@@ -41,18 +44,13 @@ class RunState:
 
 def read_state(run_dir: Path, total_steps: int) -> RunState:
     run_dir = Path(run_dir)
-    status: dict = {}
-    if (run_dir / "status.json").exists():
-        try:
-            status = json.loads((run_dir / "status.json").read_text())
-        except (OSError, json.JSONDecodeError):  # being replaced right now
-            status = {"status": "running"}
-    name = status.get("status", "pending") if (run_dir / "config.yaml").exists() else "pending"
+    status = read_status(run_dir) if (run_dir / layout.CONFIG_YAML).exists() else None
+    name = "pending" if status is None else status.status
     checkpoint = _checkpoint_step(run_dir)
-    last = _last_eval(run_dir / "evals.csv")
-    steps = max(_last_step(run_dir / "episodes.csv"), checkpoint or 0)
+    last = last_row(run_dir / layout.EVALS)
+    steps = max(int(last_row(run_dir / layout.EPISODES).get("step", 0)), checkpoint or 0)
     if name == "finished":
-        steps = int(status.get("steps", steps))
+        steps = int(status.fields.get("steps", steps))
     return RunState(
         name=run_dir.name,
         status=name,
@@ -62,7 +60,7 @@ def read_state(run_dir: Path, total_steps: int) -> RunState:
         checkpoint_step=checkpoint,
         last_mastered_pct=last.get("mastered_pct"),
         mean_rate=last["step"] / last["wall_time_s"] if last.get("wall_time_s") else None,
-        error=status.get("error"),
+        error=None if status is None else status.error,
     )
 
 
@@ -80,53 +78,6 @@ def record_failure(run_dir: Path, text: str) -> Path:
 
 
 def _checkpoint_step(run_dir: Path) -> int | None:
-    """Step of the newest complete checkpoint, or None."""
-    pointer = run_dir / "checkpoints" / "LATEST"
-    try:
-        name = pointer.read_text().strip()
-    except OSError:
-        return None
-    if not (run_dir / "checkpoints" / name / "progress.json").exists():
-        return None
-    try:
-        return int(name.rsplit("_", 1)[-1])
-    except ValueError:
-        return None
-
-
-def _tail_line(path: Path) -> str | None:
-    """Last complete line of a text file, read from its end (episode logs grow large)."""
-    try:
-        with path.open("rb") as f:
-            f.seek(0, os.SEEK_END)
-            size = f.tell()
-            f.seek(max(0, size - 4096))
-            lines = f.read().decode(errors="replace").splitlines()
-    except OSError:
-        return None
-    return lines[-1] if len(lines) > 1 else None
-
-
-def _last_step(csv_path: Path) -> int:
-    line = _tail_line(csv_path)
-    try:
-        return int(float(line.split(",", 1)[0])) if line else 0
-    except ValueError:
-        return 0
-
-
-def _last_eval(evals_csv: Path) -> dict[str, float]:
-    """The numeric cells of the newest evaluation row (empty when there is none)."""
-    try:
-        with evals_csv.open() as f:
-            header = f.readline().strip().split(",")
-    except OSError:
-        return {}
-    line = _tail_line(evals_csv)
-    out = {}
-    for name, cell in zip(header, line.split(",") if line else ()):
-        try:
-            out[name] = float(cell)
-        except ValueError:
-            pass
-    return out
+    """Step of the newest checkpoint a resume would start from, or None."""
+    folders, _ = resume_candidates(run_dir / layout.CHECKPOINTS)
+    return checkpoint_step(folders[0].name) if folders else None

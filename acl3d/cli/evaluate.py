@@ -145,7 +145,8 @@ def model_step(path: Path) -> int | None:
 
 def run_evaluation_at(run_dir: Path, step: int | None) -> dict | None:
     """The run's own evals.csv row for `step`, if it evaluated there."""
-    from acl3d.training.run_dir import RunDir, read_csv
+    from acl3d.run_format.tables import read_csv
+    from acl3d.training.run_dir import RunDir
 
     evals = RunDir(run_dir).evals_csv
     cols = read_csv(evals) if evals.exists() else {}
@@ -158,9 +159,9 @@ def run_evaluation_at(run_dir: Path, step: int | None) -> dict | None:
 
 def check_args(args) -> None:
     """Bounds of the counts (memory, processes) and a writable --out, before any evaluation."""
+    from acl3d.atomic_files import check_writable_file
     from acl3d.envs.batched import MAX_ENVS
     from acl3d.training.config import MAX_SEED, MAX_TEST_EPISODES
-    from acl3d.training.run_dir import check_writable_file
 
     for name, high in (
         ("episodes", MAX_TEST_EPISODES),
@@ -176,10 +177,10 @@ def check_args(args) -> None:
 
 
 def run(args) -> int:
+    from acl3d.run_format.checkpoints import check_zip
     from acl3d.teachers import test_sets
     from acl3d.training.checkpoint import MODEL_MEMBERS
     from acl3d.training.evaluation import evaluate_saved_model
-    from acl3d.training.run_dir import check_zip
     from acl3d.training.workers import make_env
 
     check_args(args)

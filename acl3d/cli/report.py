@@ -22,8 +22,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def check_inputs(run_dir, out, video: bool) -> None:
     """Read what the report needs (config, teacher dump, model) and check `out` before the first
     PNG is written: a damaged run fails with the file's name and leaves no partial report."""
+    from acl3d.atomic_files import check_creatable_dir
+    from acl3d.run_format.checkpoints import check_zip
     from acl3d.training.checkpoint import MODEL_MEMBERS
-    from acl3d.training.run_dir import RunDir, check_creatable_dir, check_zip
+    from acl3d.training.run_dir import RunDir
 
     run = RunDir(run_dir)
     run.read_config()

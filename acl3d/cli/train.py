@@ -347,8 +347,9 @@ def option_message(message: str) -> str:
 
 
 def run(args) -> int:
+    from acl3d.atomic_files import is_disk_full
     from acl3d.training import train
-    from acl3d.training.run_dir import RunDir, is_disk_full
+    from acl3d.training.run_dir import RunDir
 
     options = options_from_args(args)
     if not args.resume and not options.get("out"):

@@ -18,8 +18,8 @@ from collections.abc import Callable
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from acl3d.run_format.tables import CsvLog
 from acl3d.training import students
-from acl3d.training.run_dir import CsvLog
 from acl3d.training.session import Session
 
 EVAL_COLUMNS = (

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from acl3d.run_format.tables import read_csv
 from acl3d.teachers.plots import render_frame
-from acl3d.training.run_dir import RunDir, read_csv
+from acl3d.training.run_dir import RunDir
 from acl3d.video import open_sink
 
 _EPISODE_COLUMNS = {"step", "worker", "return", "length", "success", "truncated"}

@@ -16,7 +16,8 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
 from acl3d.curriculum_profile import CurriculumProfile
-from acl3d.training.run_dir import RunDir, read_csv
+from acl3d.run_format.tables import read_csv
+from acl3d.training.run_dir import RunDir
 
 
 def plot_mastered(run: RunDir, out: Path) -> Path | None:

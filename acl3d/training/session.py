@@ -18,6 +18,8 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d import validation as check
+from acl3d.atomic_files import atomic_replace, atomic_state_files, removed_on_failure, temp_prefix
+from acl3d.run_format.checkpoints import DamagedCheckpoint, verify_manifest
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
 from acl3d.training import students
@@ -29,16 +31,7 @@ from acl3d.training.config import (
 )
 from acl3d.training.curriculum import CurriculumVecEnv
 from acl3d.training.evaluation import EvalResult, evaluate, make_predict
-from acl3d.training.run_dir import (
-    DamagedCheckpoint,
-    RunDir,
-    atomic_replace,
-    atomic_state_files,
-    check_zip,
-    read_state,
-    removed_on_failure,
-    temp_prefix,
-)
+from acl3d.training.run_dir import RunDir, read_state
 from acl3d.training.workers import env_keywords, make_env, make_vec_env
 
 
@@ -122,28 +115,16 @@ def check_test_tasks(env, tasks, task_names: list[str]) -> None:
 
 
 def verify_checkpoint(folder: Path, config: TrainConfig) -> None:
-    """Read every file of a checkpoint through (zip CRCs, JSON + NPZ arrays) before any is used:
-    `DamagedCheckpoint` names the first missing, truncated or corrupt one. A config that differs
-    from the one the checkpoint was trained with (an edited config.yaml) is a ValueError."""
+    """Check every file of a checkpoint against the size and SHA-256 its manifest recorded
+    before any is used: `DamagedCheckpoint` names the first missing, truncated, corrupt or
+    edited one. A config that differs from the one the checkpoint was trained with (an edited
+    config.yaml) is a ValueError."""
+    verify_manifest(folder)
     try:
         progress = read_state(folder / "progress")
     except ValueError as exc:
         raise DamagedCheckpoint(str(exc)) from None
     check_fixed_settings(config, progress.get("config"), folder.name)
-    prefixes = ["runtime", "controller", "rng"]
-    if students.uses_vecnormalize(config.student):
-        prefixes.append(ckpt.normalization_path(folder / "model.zip").name)
-    try:
-        check_zip(folder / "model.zip", ckpt.MODEL_MEMBERS)
-        for prefix in prefixes:
-            read_state(folder / prefix)
-        buffer = folder / "replay_buffer.npz"  # off-policy students save theirs
-        if buffer.exists() or (
-            config.save_replay_buffer and not students.is_on_policy(config.student)
-        ):
-            check_zip(buffer)
-    except ValueError as exc:
-        raise DamagedCheckpoint(str(exc)) from None
 
 
 def check_fixed_settings(config: TrainConfig, trained: dict | None, checkpoint: str) -> None:

@@ -21,6 +21,8 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from acl3d import validation as check
+from acl3d.atomic_files import is_disk_full
+from acl3d.run_format.tables import read_csv, truncate_csv
 from acl3d.training import students
 from acl3d.training.callbacks import run_callbacks
 from acl3d.training.config import (
@@ -31,7 +33,7 @@ from acl3d.training.config import (
     student_params,
     validate,
 )
-from acl3d.training.run_dir import RunDir, is_disk_full, read_csv, read_state, truncate_csv
+from acl3d.training.run_dir import RunDir, read_state
 from acl3d.training.session import Session, verify_checkpoint
 
 
