@@ -8,7 +8,7 @@ import pytest
 
 from acl3d.task_space import TaskSpace
 from acl3d.teachers import RunFacts, make, teacher_class
-from acl3d.teachers.gmm import fit_gmm
+from acl3d.teachers.mixture_fit import fit_gmm
 from acl3d.teachers.presets import BENCHMARK, PRESETS, TEACHDEEPRL, preset_params
 from acl3d.toy import ToyEnv, run_teacher
 
@@ -316,7 +316,7 @@ def test_oracle_window_moves_only_when_reward_threshold_is_reached():
 def test_gmm_fit_and_aic_match_sklearn():
     from sklearn.mixture import GaussianMixture
 
-    from acl3d.teachers.gmm import gmm_fitness
+    from acl3d.teachers.mixture_fit import gmm_fitness
 
     rng = np.random.default_rng(1)
     x = np.vstack([rng.normal([0, 0, 0], 0.1, (150, 3)), rng.normal([1, 1, 0.5], 0.2, (100, 3))])

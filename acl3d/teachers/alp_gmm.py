@@ -129,6 +129,7 @@ class ALPGMM(GMMTeacherBase):
         alp_max_size: int | None = None,
         initial_dist: dict | None = None,
         gmm_backend: str = "acl3d",
+        fit_lag: int = 0,
     ):
         super().__init__(task_space, seed)
         self._init_gmm(
@@ -140,6 +141,7 @@ class ALPGMM(GMMTeacherBase):
             nb_em_init,
             initial_dist,
             gmm_backend,
+            fit_lag,
         )
         if not isinstance(alp_buffer_size, (int, np.integer)) or alp_buffer_size < 1:
             raise ValueError(f"alp_buffer_size must be an integer >= 1, got {alp_buffer_size!r}")
@@ -159,10 +161,14 @@ class ALPGMM(GMMTeacherBase):
         self.raw_alps.append(alp)
         del self.tasks_unit[: -self.fit_rate], self.raw_alps[: -self.fit_rate]
         self.bk["tasks_alps"].append(alp)
-        count = self.nb_episodes + 1
-        if count >= self.nb_bootstrap and count % self.fit_rate == 0:
-            alps = np.asarray(self.raw_alps)[:, None] * self._reward_scale()
-            self._fit(np.hstack([np.asarray(self.tasks_unit), alps]))
+        self._episode_done(
+            lambda: np.hstack(
+                [
+                    np.asarray(self.tasks_unit),
+                    np.asarray(self.raw_alps)[:, None] * self._reward_scale(),
+                ]
+            )
+        )
 
     def _component_weights(self) -> np.ndarray:
         return np.maximum(self.gmm.means[:, -1], 0.0)

@@ -132,6 +132,8 @@ class Teacher(ABC):
         n = validation.count("n", n, minimum=0)
         if n == 0:
             return np.zeros((0, self.dim), dtype=np.float32)
+        if n == 1:  # `_sample`'s draw, so a run matches the one-task API
+            return self.sample_task()[None]
         return np.asarray(self._sample_batch(n), dtype=np.float32).reshape(n, self.dim)
 
     def update_batch(self, tasks, returns, successes=None) -> None:
@@ -230,7 +232,7 @@ class Teacher(ABC):
         pass
 
     def _sample_batch(self, n: int) -> np.ndarray:
-        """(n, dim) tasks; override where the draws vectorise (keep n = 1 equal to `_sample`)."""
+        """(n >= 2, dim) tasks; override where the draws vectorise."""
         return np.stack([np.asarray(self._sample()).reshape(self.dim) for _ in range(n)])
 
     def _update_batch(self, tasks: np.ndarray, returns: np.ndarray, successes: np.ndarray):

@@ -40,6 +40,7 @@ class CovarGMM(GMMTeacherBase):
         absolute_lp: bool = False,
         initial_dist: dict | None = None,
         gmm_backend: str = "acl3d",
+        fit_lag: int = 0,
     ):
         super().__init__(task_space, seed)
         self._init_gmm(
@@ -51,6 +52,7 @@ class CovarGMM(GMMTeacherBase):
             nb_em_init,
             initial_dist,
             gmm_backend,
+            fit_lag,
         )
         self.absolute_lp = bool(absolute_lp)
         self.tasks_unit: list[np.ndarray] = []  # the last fit_rate normalised tasks
@@ -67,10 +69,15 @@ class CovarGMM(GMMTeacherBase):
             self.times[: -self.fit_rate],
             self.rewards[: -self.fit_rate],
         )
-        count = self.nb_episodes + 1
-        if count >= self.nb_bootstrap and count % self.fit_rate == 0:
-            r = (np.asarray(self.rewards) - self.r_min) * self._reward_scale()
-            self._fit(np.column_stack([np.asarray(self.tasks_unit), self.times, r]))
+        self._episode_done(
+            lambda: np.column_stack(
+                [
+                    np.asarray(self.tasks_unit),
+                    self.times,
+                    (np.asarray(self.rewards) - self.r_min) * self._reward_scale(),
+                ]
+            )
+        )
 
     def _component_weights(self) -> np.ndarray:
         cov_tr = self.gmm.covariances[:, -2, -1]

@@ -1,218 +1,37 @@
-"""Gaussian mixtures for the GMM teachers (ALP-GMM, Covar-GMM): a small EM and the shared base.
+"""The machinery ALP-GMM and Covar-GMM share (`GMMTeacherBase`).
 
-Same model, initialisation and AIC/BIC as sklearn's GaussianMixture (full covariances, k-means
-init over every column, reg_covar 1e-6, tol 1e-3), about 10x less CPU: every EM iteration is two
-matrix products over expanded Mahalanobis terms. `gmm_backend="sklearn"` fits with scikit-learn
-itself, in the originals' units, to compare with TeachMyAgent (the `sklearn` extra).
-`GMMTeacherBase` holds what both teachers share: bootstrap, random-task ratio, fitting every
-`fit_rate` episodes over [normalised task, progress columns], sampling a Gaussian in proportion
-to its progress weight.
+Bootstrap, random-task ratio, fitting every `fit_rate` episodes over [normalised task, progress
+columns] (the EM is in `acl3d.teachers.mixture_fit`), sampling a Gaussian in proportion to its
+progress weight. With `fit_lag` K > 0 a refit runs in a background thread and its mixture is
+applied exactly K episodes after the fit point, so the step loop never waits for EM and a run
+stays reproducible bit for bit (the fit is a pure function of its data and seed).
 """
 
 from __future__ import annotations
 
-import math
-import warnings
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
 from acl3d import validation
-from acl3d.extras import optional_dependency
 from acl3d.teachers.base import Teacher
+from acl3d.teachers.mixture_fit import (
+    FITNESS,
+    GMM_BACKENDS,
+    GaussianMixture,
+    fit_mixture,
+    sklearn_mixture_class,
+)
 
-_FITNESS = ("aic", "bic", "aicc")
-GMM_BACKENDS = ("acl3d", "sklearn")
-_LOG_2PI = math.log(2.0 * math.pi)
-_EPS10 = 10.0 * np.finfo(np.float64).eps
-
-
-# ---------------------------------------------------------------------- Gaussian mixtures
-class GaussianMixture:
-    """A fitted full-covariance Gaussian mixture (plain arrays, so it saves as JSON + npz)."""
-
-    def __init__(self, weights, means, covariances):
-        self.weights = np.asarray(weights, dtype=np.float64)
-        self.means = np.asarray(means, dtype=np.float64)
-        self.covariances = np.asarray(covariances, dtype=np.float64)
-        self._chol = np.linalg.cholesky(self.covariances)
-
-    @property
-    def k(self) -> int:
-        return len(self.weights)
-
-    def sample_component(self, rng: np.random.Generator, index: int) -> np.ndarray:
-        z = rng.standard_normal(self.means.shape[1])
-        return self.means[index] + self._chol[index] @ z
-
-    def state(self) -> dict[str, np.ndarray]:
-        return {"weights": self.weights, "means": self.means, "covariances": self.covariances}
-
-    def affine(self, scale: np.ndarray, offset: np.ndarray) -> GaussianMixture:
-        """The mixture of `x * scale + offset` (per column) for x drawn from this one."""
-        return GaussianMixture(
-            self.weights,
-            self.means * scale + offset,
-            self.covariances * np.outer(scale, scale),
-        )
+_REFITS: ThreadPoolExecutor | None = None  # one background thread for every teacher's refits
 
 
-def _log_gauss(x2t: np.ndarray, xt: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
-    """log N(x_n | mean_k, cov_k) as a (k, n) array, from x^T (d, n) and its outer products (d*d, n).
-
-    The Mahalanobis terms are expanded (x'Px - 2x'Pm + m'Pm) so the whole E-step is two matrix
-    products instead of one small product per component (EM on a few hundred points is call-bound).
-    """
-    k, d = means.shape
-    log_det = 2.0 * np.log(np.diagonal(np.linalg.cholesky(covs), axis1=1, axis2=2)).sum(axis=1)
-    prec = np.linalg.inv(covs)
-    prec_mean = (prec @ means[:, :, None])[:, :, 0]
-    const = (prec_mean * means).sum(axis=1) + log_det + d * _LOG_2PI
-    maha = prec.reshape(k, d * d) @ x2t - 2.0 * (prec_mean @ xt)
-    return -0.5 * (maha + const[:, None])
-
-
-def _m_step(x: np.ndarray, x2: np.ndarray, resp: np.ndarray, reg: np.ndarray):
-    """Weights, means and regularised covariances from (k, n) responsibilities."""
-    nk = resp.sum(axis=1) + _EPS10
-    d = x.shape[1]
-    means = (resp @ x) / nk[:, None]
-    covs = (resp @ x2).reshape(-1, d, d) / nk[:, None, None] - means[:, :, None] * means[:, None, :]
-    return nk / x.shape[0], means, covs + reg
-
-
-def _kmeans_labels(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
-    """Cluster labels of k-means as sklearn's GaussianMixture initialises it (init "kmeans").
-
-    Greedy k-means++ seeding (2 + ln k candidates per centre, the one that lowers the total
-    squared distance most is kept), then Lloyd iterations until the centres move less than
-    1e-4 x the mean column variance (at most 300), over every fitted column. Seeding alone, or
-    seeding on the task columns only, leaves clusters that EM shrinks onto a few aligned points
-    (e.g. tasks clipped onto a bound): degenerate, line-shaped components.
-    """
-    n = len(x)
-    trials = 2 + int(math.log(k))
-    centres = np.empty((k, x.shape[1]))
-    centres[0] = x[rng.integers(n)]
-    d2 = ((x - centres[0]) ** 2).sum(axis=1)
-    for c in range(1, k):
-        total = d2.sum()
-        if total > 0:
-            candidates = np.searchsorted(np.cumsum(d2), rng.random(trials) * total)
-            candidates = np.minimum(candidates, n - 1)
-        else:
-            candidates = rng.integers(n, size=trials)
-        to_candidates = ((x[None, :, :] - x[candidates][:, None, :]) ** 2).sum(axis=2)
-        closest = np.minimum(d2[None, :], to_candidates)
-        best = int(closest.sum(axis=1).argmin())
-        centres[c], d2 = x[candidates[best]], closest[best]
-    tol = 1e-4 * float(x.var(axis=0).mean())
-    ids = np.arange(k)[:, None]
-    for _ in range(300):
-        labels = ((centres**2).sum(axis=1)[None, :] - 2.0 * x @ centres.T).argmin(axis=1)
-        members = (labels[None, :] == ids).astype(np.float64)  # (k, n) one-hot
-        counts = members.sum(axis=1, keepdims=True)
-        moved = np.where(counts > 0, (members @ x) / np.maximum(counts, 1.0), centres)
-        shift = float(((moved - centres) ** 2).sum())
-        centres = moved
-        if shift <= tol:
-            break
-    return ((centres**2).sum(axis=1)[None, :] - 2.0 * x @ centres.T).argmin(axis=1)
-
-
-def fit_gmm(
-    x: np.ndarray,
-    k: int,
-    rng: np.random.Generator,
-    *,
-    n_init: int = 1,
-    max_iter: int = 100,
-    tol: float = 1e-3,
-    reg_covar: float = 1e-6,
-) -> tuple[GaussianMixture, float]:
-    """EM for a full-covariance mixture; returns the best of `n_init` runs and its total log-lik.
-
-    Initialised from k-means labels over all columns, as sklearn's GaussianMixture.
-    """
-    best, best_ll = None, -np.inf
-    n = len(x)
-    x2 = (x[:, :, None] * x[:, None, :]).reshape(n, -1)
-    xt, x2t = np.ascontiguousarray(x.T), np.ascontiguousarray(x2.T)
-    reg = reg_covar * np.eye(x.shape[1])
-    for _ in range(n_init):
-        resp = np.zeros((k, n))
-        resp[_kmeans_labels(x, k, rng), np.arange(n)] = 1.0
-        weights, means, covs = _m_step(x, x2, resp, reg)
-        prev = -np.inf
-        for _ in range(max_iter):
-            log_p = _log_gauss(x2t, xt, means, covs) + np.log(weights)[:, None]
-            top = log_p.max(axis=0)
-            log_norm = top + np.log(np.exp(log_p - top).sum(axis=0))
-            ll = float(log_norm.mean())
-            if abs(ll - prev) < tol:
-                break
-            prev = ll
-            weights, means, covs = _m_step(x, x2, np.exp(log_p - log_norm), reg)
-        if ll > best_ll:
-            best, best_ll = (weights, means, covs), ll
-    return GaussianMixture(*best), best_ll * n
-
-
-def gmm_fitness(name: str, log_lik: float, k: int, n: int, d: int) -> float:
-    """AIC / BIC / AICc of a k-component full-covariance mixture in d dims (lower is better)."""
-    n_params = k * (d * (d + 1) / 2 + d + 1) - 1
-    if name == "aic":
-        return -2.0 * log_lik + 2.0 * n_params
-    if name == "bic":
-        return -2.0 * log_lik + n_params * math.log(n)
-    penalty = (
-        2.0 * n_params * (n_params + 1) / (n - n_params - 1) if n - n_params - 1 > 0 else np.inf
-    )
-    return -2.0 * log_lik + 2.0 * n_params + penalty
-
-
-def _sklearn_mixture_class():
-    """sklearn's GaussianMixture, imported only when the sklearn backend is chosen."""
-    with optional_dependency('gmm_backend="sklearn"'):
-        from sklearn.mixture import GaussianMixture as SklearnMixture
-    return SklearnMixture
-
-
-def fit_sklearn_gmm(x: np.ndarray, k: int, seed: int, n_init: int = 1):
-    """sklearn's fit as the originals call it: full covariances, random_state = the seed."""
-    from sklearn.exceptions import ConvergenceWarning
-    from threadpoolctl import threadpool_limits
-
-    # one thread: on a few hundred points, OpenMP k-means threads only add overhead (~100x
-    # slower on a loaded 2-core machine)
-    with warnings.catch_warnings(), threadpool_limits(1):
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        fit = _sklearn_mixture_class()(
-            k, covariance_type="full", random_state=seed, n_init=n_init
-        ).fit(x)
-    return GaussianMixture(fit.weights_, fit.means_, fit.covariances_), fit.score(x) * len(x)
-
-
-def fit_best_gmm(
-    x, ks, rng, fitness: str, n_init: int, backend: str = "acl3d", seed: int = 0
-) -> GaussianMixture:
-    """Fit one mixture per k and keep the fittest (k larger than the data size is skipped).
-
-    `backend="sklearn"` fits with scikit-learn's GaussianMixture(random_state=seed) instead of
-    the EM above (`rng` is then unused).
-    """
-    best, best_score = None, np.inf
-    for k in ks:
-        if k > len(x):
-            continue
-        if backend == "sklearn":
-            gmm, ll = fit_sklearn_gmm(x, int(k), seed, n_init)
-        else:
-            gmm, ll = fit_gmm(x, int(k), rng, n_init=n_init)
-        score = gmm_fitness(fitness, ll, int(k), len(x), x.shape[1])
-        if score < best_score:
-            best, best_score = gmm, score
-    return best
+def _refits() -> ThreadPoolExecutor:
+    global _REFITS
+    if _REFITS is None:
+        _REFITS = ThreadPoolExecutor(max_workers=1, thread_name_prefix="acl3d-gmm-refit")
+    return _REFITS
 
 
 def pick_proportional(rng: np.random.Generator, weights: np.ndarray) -> int:
@@ -221,6 +40,14 @@ def pick_proportional(rng: np.random.Generator, weights: np.ndarray) -> int:
     if not cum[-1] > 0:
         return int(rng.integers(len(weights)))
     return int(min(np.searchsorted(cum, rng.random() * cum[-1], side="right"), len(cum) - 1))
+
+
+def pick_many(rng: np.random.Generator, weights: np.ndarray, n: int) -> np.ndarray:
+    """`n` indices drawn as `pick_proportional` draws one (one uniform each, vectorised)."""
+    cum = np.cumsum(weights)
+    if not cum[-1] > 0:
+        return rng.integers(len(weights), size=n)
+    return np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"), len(cum) - 1)
 
 
 # ---------------------------------------------------------------------- shared GMM-teacher machinery
@@ -240,8 +67,8 @@ def check_common_params(
     ks = [validation.count("potential_ks", k) for k in ks_list]
     if min(ks) > fit_rate:
         raise ValueError(f"potential_ks {ks} all exceed fit_rate {fit_rate} (points per fit)")
-    if gmm_fitness_func not in _FITNESS:
-        raise ValueError(f"gmm_fitness_func must be one of {_FITNESS}, got {gmm_fitness_func!r}")
+    if gmm_fitness_func not in FITNESS:
+        raise ValueError(f"gmm_fitness_func must be one of {FITNESS}, got {gmm_fitness_func!r}")
     validation.count("nb_em_init", nb_em_init)
     return int(nb_bootstrap), ks
 
@@ -288,16 +115,19 @@ class GMMTeacherBase(Teacher):
         nb_em_init,
         initial_dist,
         gmm_backend,
+        fit_lag,
     ):
         if gmm_backend not in GMM_BACKENDS:
             raise ValueError(f"gmm_backend must be one of {GMM_BACKENDS}, got {gmm_backend!r}")
         if gmm_backend == "sklearn":
-            _sklearn_mixture_class()  # a missing extra fails here, not at the first fit
+            sklearn_mixture_class()  # a missing extra fails here, not at the first fit
         self.gmm_backend = gmm_backend
         self.nb_bootstrap, self.potential_ks = check_common_params(
             fit_rate, nb_bootstrap, random_task_ratio, potential_ks, gmm_fitness_func, nb_em_init
         )
         self.fit_rate = int(fit_rate)
+        self.fit_lag = validation.integer("fit_lag", fit_lag, 0, self.fit_rate - 1)
+        self._refit: tuple[dict[str, Any], Future] | None = None  # (job, its running fit)
         self.random_task_ratio = float(random_task_ratio)
         self.gmm_fitness_func = gmm_fitness_func
         self.nb_em_init = int(nb_em_init)
@@ -342,6 +172,35 @@ class GMMTeacherBase(Teacher):
         self.bk["tasks_origin"].append(index)
         return self._from_unit(self.gmm.sample_component(self.rng, index)[: self.d_act])
 
+    def _sample_batch(self, n: int) -> np.ndarray:
+        """`_sample` for n tasks with each random quantity drawn for the whole batch."""
+        bootstrap = self.nb_episodes < self.nb_bootstrap
+        if bootstrap and self.initial_dist is not None:
+            self.bk["tasks_origin"].extend([-2] * n)
+            z = self.rng.standard_normal((n, self.dim))
+            return self.clip(self.initial_dist[0] + z @ self._init_chol.T)
+        if bootstrap or self.gmm is None:
+            self.bk["tasks_origin"].extend([-1] * n)
+            return self.rng.uniform(self.mins, self.maxs, size=(n, self.dim))
+        uniform = self.rng.random(n) < self.random_task_ratio
+        tasks = np.empty((n, self.dim))
+        tasks[uniform] = self.rng.uniform(self.mins, self.maxs, size=(int(uniform.sum()), self.dim))
+        picks = pick_many(self.rng, self._component_weights(), n - int(uniform.sum()))
+        tasks[~uniform] = self._components_to_tasks(picks)
+        origins = np.full(n, -1)
+        origins[~uniform] = picks
+        self.bk["tasks_origin"].extend(origins.tolist())
+        return tasks
+
+    def _components_to_tasks(self, picks: np.ndarray) -> np.ndarray:
+        """One draw from each picked component, extra columns dropped, in task units."""
+        z = self.rng.standard_normal((len(picks), self.gmm.means.shape[1]))
+        units = self.gmm.means[picks] + np.matmul(self.gmm.chol[picks], z[:, :, None])[:, :, 0]
+        tasks = np.tile(self.mins, (len(picks), 1))
+        act = self.active
+        tasks[:, act] = self.mins[act] + np.clip(units[:, : self.d_act], 0.0, 1.0) * self.span[act]
+        return tasks
+
     def _non_exploratory_sample(self) -> np.ndarray:
         if self.gmm is None:
             return self.uniform_task()
@@ -359,24 +218,45 @@ class GMMTeacherBase(Teacher):
         units, raw returns): the sklearn backend fits there, as TeachMyAgent does."""
         raise NotImplementedError
 
+    def _episode_done(self, fit_data) -> None:
+        """After an episode's book-keeping: apply a refit whose point has come, then start
+        one if this episode completes a `fit_rate` batch (`fit_data()`: the points to fit)."""
+        count = self.nb_episodes + 1
+        if self._refit is not None and count >= self._refit[0]["apply_at"]:
+            job, running = self._refit
+            self._refit = None
+            self._apply(running.result())  # waits only if the thread is not done yet
+        if count >= self.nb_bootstrap and count % self.fit_rate == 0:
+            self._fit(fit_data())
+
     def _fit(self, data: np.ndarray) -> None:
-        em_rng = np.random.default_rng(int(self.rng.integers(2**63)))
-        if self.gmm_backend == "sklearn":
-            scale, offset = self._original_units()
-            raw = fit_best_gmm(
-                data * scale + offset,
-                self.potential_ks,
-                em_rng,
-                self.gmm_fitness_func,
-                self.nb_em_init,
-                backend="sklearn",
-                seed=self.seed,
-            )
-            self.gmm = raw.affine(1.0 / scale, -offset / scale)
+        """Fit now (`fit_lag` 0) or in the background, applied `fit_lag` episodes later."""
+        job = {
+            "data": np.array(data, dtype=np.float64),
+            "em_seed": int(self.rng.integers(2**63)),
+            "units": self._original_units() if self.gmm_backend == "sklearn" else None,
+            "apply_at": self.nb_episodes + 1 + self.fit_lag,
+        }
+        if self.fit_lag == 0:
+            self._apply(self._run_fit(job))
         else:
-            self.gmm = fit_best_gmm(
-                data, self.potential_ks, em_rng, self.gmm_fitness_func, self.nb_em_init
-            )
+            self._refit = (job, _refits().submit(self._run_fit, job))
+
+    def _run_fit(self, job: dict[str, Any]) -> GaussianMixture:
+        """The fit of `job`: reads only settings fixed at construction (thread-safe)."""
+        return fit_mixture(
+            job["data"],
+            self.potential_ks,
+            job["em_seed"],
+            self.gmm_fitness_func,
+            self.nb_em_init,
+            backend=self.gmm_backend,
+            sklearn_seed=self.seed,
+            units=job["units"],
+        )
+
+    def _apply(self, gmm: GaussianMixture) -> None:
+        self.gmm = gmm
         means, covs = self._in_task_units()
         self.bk["weights"].append(self.gmm.weights.copy())
         self.bk["means"].append(means)
@@ -418,7 +298,13 @@ class GMMTeacherBase(Teacher):
             "gmm": None if self.gmm is None else self.gmm.state(),
             "r_min": None if not np.isfinite(self.r_min) else self.r_min,
             "r_max": None if not np.isfinite(self.r_max) else self.r_max,
+            "refit": None if self._refit is None else self._job_state(self._refit[0]),
         }
+
+    @staticmethod
+    def _job_state(job: dict[str, Any]) -> dict[str, Any]:
+        units = job["units"]
+        return {**job, "units": None if units is None else list(units)}
 
     def _load_gmm_state(self, extra: dict[str, Any]) -> None:
         g = extra["gmm"]
@@ -427,3 +313,16 @@ class GMMTeacherBase(Teacher):
         )
         self.r_min = np.inf if extra["r_min"] is None else float(extra["r_min"])
         self.r_max = -np.inf if extra["r_max"] is None else float(extra["r_max"])
+        # a refit in flight is fitted again from its saved inputs (same result); a state saved
+        # by a teacher without fit lag has none
+        job = extra.get("refit")
+        self._refit = None
+        if job is not None:
+            units = None if job["units"] is None else tuple(np.asarray(u) for u in job["units"])
+            job = {
+                **job,
+                "units": units,
+                "em_seed": int(job["em_seed"]),
+                "apply_at": int(job["apply_at"]),
+            }
+            self._refit = (job, _refits().submit(self._run_fit, job))

@@ -27,7 +27,7 @@ import numpy as np
 
 from acl3d import validation
 from acl3d.teachers.base import Teacher
-from acl3d.teachers.gmm import pick_proportional
+from acl3d.teachers.gmm import pick_many, pick_proportional
 
 P_MUTATE, P_UNIFORM = (
     0.1,
@@ -222,6 +222,27 @@ class RIAC(Teacher):
             task = worst + self.rng.standard_normal(self.dim) * MUTATION_STD * self.span
             return np.clip(task, low, high)
         return self.rng.uniform(low, high)
+
+    def _sample_batch(self, n: int) -> np.ndarray:
+        """`_sample` for n tasks, each random quantity drawn for the whole batch."""
+        mode = self.rng.random(n)
+        ids, alps = self._region_alps()
+        uniform = (P_MUTATE <= mode) & (mode < P_MUTATE + P_UNIFORM)
+        tasks = np.empty((n, self.dim))
+        tasks[uniform] = self.rng.uniform(self.mins, self.maxs, size=(int(uniform.sum()), self.dim))
+        regions = ids[pick_many(self.rng, alps, n - int(uniform.sum()))]
+        low, high = np.asarray(self.low)[regions], np.asarray(self.high)[regions]
+        has_rewards = np.fromiter((len(self.rewards[r]) > 0 for r in regions), bool, len(regions))
+        mutate = (mode[~uniform] < P_MUTATE) & has_rewards
+        worst = np.array(  # the worst task of each mutated episode's region
+            [self.tasks[r][int(np.argmin(self.rewards[r]))] for r in regions[mutate]]
+        ).reshape(-1, self.dim)
+        noise = self.rng.standard_normal((len(worst), self.dim)) * MUTATION_STD * self.span
+        inside = np.empty((len(regions), self.dim))
+        inside[mutate] = np.clip(worst + noise, low[mutate], high[mutate])
+        inside[~mutate] = self.rng.uniform(low[~mutate], high[~mutate])
+        tasks[~uniform] = inside
+        return tasks
 
     def _non_exploratory_sample(self) -> np.ndarray:
         ids, alps = self._region_alps()

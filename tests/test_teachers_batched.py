@@ -1,0 +1,116 @@
+"""Batched teacher calls: many tasks sampled and many episodes learnt in one call, and the
+mixture teachers' background refits applied at a fixed episode (runs stay reproducible)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_teachers_classic import FAST, NAMES, SPACES, _reward
+
+from acl3d.teachers import make
+from acl3d.teachers.base import load_state, save_state
+
+SPACE = SPACES["degenerate"]
+GMM_FAST = {"fit_rate": 40, "potential_ks": [2, 3]}
+
+
+def drive_batched(teacher, rounds: int, n: int, start: int = 0) -> np.ndarray:
+    """`rounds` times: n tasks at once, then their n episodes at once."""
+    out = []
+    for r in range(start, start + rounds):
+        tasks = teacher.sample_tasks(n)
+        returns = [_reward(t, SPACE, r * n + j) for j, t in enumerate(tasks)]
+        teacher.update_batch(tasks, returns, np.zeros(n, bool))
+        out.append(tasks)
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_batches_are_in_bounds_reproducible_and_one_is_sample_task(name):
+    a, b, c = (make(name, SPACE, seed=3, **FAST[name]) for _ in range(3))
+    tasks = drive_batched(a, 12, 16)
+    assert tasks.shape == (192, SPACE.dim) and tasks.dtype == np.float32
+    assert np.all(tasks >= SPACE.low) and np.all(tasks <= SPACE.high)
+    np.testing.assert_array_equal(tasks, drive_batched(b, 12, 16))
+    assert a.nb_episodes == 192 and a.sample_tasks(0).shape == (0, SPACE.dim)
+    for _ in range(60):  # n = 1 is exactly the one-task API
+        twin = make_twin(c)
+        t = c.sample_tasks(1)[0]
+        np.testing.assert_array_equal(t, twin.sample_task())
+        c.update_batch(t[None], [_reward(t, SPACE, c.nb_episodes)], None)
+
+
+def make_twin(teacher):
+    """A teacher in the same state (same class, parameters and RNG state)."""
+    twin = make(teacher.name, SPACE, seed=0, **FAST[teacher.name])
+    twin.load_state_dict(teacher.state_dict())
+    return twin
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_update_batch_equals_one_update_per_episode(name):
+    a, b = (make(name, SPACE, seed=1, **FAST[name]) for _ in range(2))
+    tasks = np.random.default_rng(0).uniform(SPACE.low, SPACE.high, (90, SPACE.dim))
+    returns = np.array([_reward(t, SPACE, i) for i, t in enumerate(tasks)])
+    successes = returns > 0.5
+    for lo in range(0, 90, 30):
+        a.update_batch(tasks[lo : lo + 30], returns[lo : lo + 30], successes[lo : lo + 30])
+    for t, r, s in zip(tasks, returns, successes):
+        b.episodic_update(t, r, bool(s))
+    np.testing.assert_array_equal(a.sample_tasks(20), b.sample_tasks(20))
+
+
+def test_random_batch_draws_the_same_tasks_as_single_calls():
+    a, b = make("random", SPACE, seed=7), make("random", SPACE, seed=7)
+    np.testing.assert_array_equal(a.sample_tasks(50), [b.sample_task() for _ in range(50)])
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"tasks": np.zeros((2, 3))},
+        {"returns": [0.0, np.nan]},
+        {"returns": [0.0]},
+        {"successes": [0.5, 1.0]},
+        {"tasks": np.full((2, SPACE.dim), 1e9)},
+    ],
+)
+def test_bad_batch_raises_naming_it_and_changes_nothing(bad):
+    teacher = make("alp-gmm", SPACE, seed=0, **GMM_FAST)
+    before = teacher.state_dict()
+    args = {"tasks": np.tile(SPACE.low, (2, 1)), "returns": [0.0, 1.0], "successes": [True, False]}
+    args.update(bad)
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        teacher.update_batch(**args)
+    assert teacher.nb_episodes == 0 and teacher.state_dict()["rng"] == before["rng"]
+    with pytest.raises(ValueError, match="n"):
+        teacher.sample_tasks(-1)
+
+
+@pytest.mark.parametrize("name", ["alp-gmm", "covar-gmm"])
+def test_background_refit_applies_after_exactly_k_episodes_and_resumes_exactly(name, tmp_path):
+    params = {**GMM_FAST, "fit_lag": 7}
+    a, b = make(name, SPACE, seed=2, **params), make(name, SPACE, seed=2, **params)
+    tasks = drive_batched(a, 10, 9)  # 90 episodes: fits started at 40 and 80
+    assert a.bk["episodes"] == [47, 87]
+    np.testing.assert_array_equal(tasks, drive_batched(b, 10, 9))
+    drive_batched(a, 1, 3)  # 93 episodes: nothing pending
+    for n_before in (82, 83):  # save while the refit of episode 80 is in flight
+        c = make(name, SPACE, seed=2, **params)
+        for _ in range(n_before):
+            t = c.sample_tasks(1)
+            c.update_batch(t, [_reward(t[0], SPACE, c.nb_episodes)])
+        save_state(tmp_path / "t", c.state_dict())
+        d = make(name, SPACE, seed=0, **params)
+        d.load_state_dict(load_state(tmp_path / "t"))
+        for teacher in (c, d):
+            for _ in range(10):
+                t = teacher.sample_tasks(1)
+                teacher.update_batch(t, [_reward(t[0], SPACE, teacher.nb_episodes)])
+        assert c.bk["episodes"] == d.bk["episodes"] == [47, 87]
+        np.testing.assert_array_equal(c.sample_tasks(30), d.sample_tasks(30))
+
+
+def test_fit_lag_must_be_below_fit_rate():
+    with pytest.raises(ValueError, match="fit_lag"):
+        make("alp-gmm", SPACE, seed=0, fit_rate=40, fit_lag=40)
