@@ -22,6 +22,8 @@ PACKAGES: dict[str, tuple[str, str]] = {
     "imageio_ffmpeg": ("imageio-ffmpeg", "video"),
     "PIL": ("pillow", "video"),
     "ray": ("ray", "campaign"),
+    "rsl_rl": ("rsl-rl-lib", "rsl"),
+    "tensordict": ("tensordict", "rsl"),
     "dm_control": ("dm-control", "dmc"),
     "sklearn": ("scikit-learn", "sklearn"),
     "syllabus": ("syllabus-rl", "syllabus"),

@@ -59,8 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--student",
-        help=f"sac, ppo or any Stable-Baselines3 algorithm: sb3:TD3, sb3:A2C, pkg.mod:Class "
-        f"(default {_DEFAULTS.student})",
+        help=f"sac, ppo or any Stable-Baselines3 algorithm: sb3:TD3, sb3:A2C, pkg.mod:Class; "
+        f"rsl-ppo: rsl_rl's PPO on torch tensors (extra [rsl]) (default {_DEFAULTS.student})",
     )
     g.add_argument(
         "--preset",

@@ -40,6 +40,7 @@ from acl3d.training.exclusion import (
 
 PRESETS = presets.PRESETS
 STUDENTS: tuple[str, ...] = ("sac", "ppo")  # with presets; "sb3:TD3", "pkg.mod:Class" too
+TORCH_STUDENTS: tuple[str, ...] = ("rsl-ppo",)  # torch-native: acl3d.training.torch_student
 
 # SB3's SAC and PPO, unless their buffer excludes transitions (acl3d.training.exclusion)
 _ALGOS = {"sac": ExcludingSAC, "ppo": ExcludingPPO}
@@ -54,7 +55,8 @@ def spec(student) -> str:
 
 def algorithm_class(student: str) -> type[BaseAlgorithm]:
     """The SB3 algorithm class of a student name (see the module docstring)."""
-    valid = f"valid students: {', '.join(STUDENTS)}, sb3:NAME (e.g. sb3:TD3) or pkg.module:Class"
+    names = ", ".join(STUDENTS + TORCH_STUDENTS)
+    valid = f"valid students: {names}, sb3:NAME (e.g. sb3:TD3) or pkg.module:Class"
     if student in _ALGOS:
         return _ALGOS[student]
     if not isinstance(student, str) or ":" not in student:
@@ -101,12 +103,18 @@ def check_action_space(student: str, observation_space, action_space) -> None:
         ) from None
 
 
+def is_torch_native(student) -> bool:
+    """Whether `student` trains on tensor worlds in its own loop (not an SB3 algorithm)."""
+    return student in TORCH_STUDENTS
+
+
 def is_on_policy(student: str) -> bool:
-    return issubclass(algorithm_class(student), OnPolicyAlgorithm)
+    return is_torch_native(student) or issubclass(algorithm_class(student), OnPolicyAlgorithm)
 
 
 def check_student(student: str, preset: str) -> None:
-    algorithm_class(student)
+    if not is_torch_native(student):
+        algorithm_class(student)
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; valid presets: {', '.join(PRESETS)}")
 
@@ -117,6 +125,10 @@ def hyperparameters(student: str, preset: str, n_envs: int, overrides=None) -> d
     `overrides` replaces top-level keys (e.g. `{"buffer_size": 100000}`); unknown keys fail.
     """
     check_student(student, preset)
+    if is_torch_native(student):
+        from acl3d.training.torch_student import presets as torch_presets
+
+        return torch_presets.hyperparameters(preset, n_envs, overrides)
     if student in presets.PRESET_PARAMS:
         params = presets.PRESET_PARAMS[student](preset, n_envs)
         accepted = set(params) | presets.EXTRA_KEYS[student]
@@ -157,6 +169,8 @@ def collection_steps(student: str, params: dict, n_envs: int) -> int:
     """Env steps SB3 collects between two checks of its step budget: an on-policy rollout
     (n_steps x n_envs), or an off-policy algorithm's train_freq x n_envs (1 x n_envs for an
     episode-based train_freq); the algorithm's own default where `params` does not say."""
+    if is_torch_native(student):
+        return int(params["num_steps_per_env"]) * n_envs
     defaults = inspect.signature(algorithm_class(student).__init__).parameters
     if is_on_policy(student):
         return int(params.get("n_steps", defaults["n_steps"].default)) * n_envs

@@ -1,0 +1,64 @@
+"""The test set played as many worlds at once: test task k is world k of a batched env.
+
+All test tasks start together (up to `MAX_ENVS` worlds; a larger test set is played in chunks of
+that many), each world seeded `eval_seed + k`, and the pass ends when every world has finished
+its first episode. The policy gets (N, obs) tensors; evaluation draws from its own random
+streams, so training continues exactly as without it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from acl3d.envs.batched import MAX_ENVS
+from acl3d.envs.batched_vector import BatchedVectorEnv
+from acl3d.envs.curriculum_wrapper import INFO_KEY
+from acl3d.training.evaluation import EvalResult, own_random_streams
+
+
+class WorldEvaluator:
+    """Evaluates a policy on `tasks` with the run's evaluation seed (the same every pass)."""
+
+    def __init__(self, config, tasks):
+        self.tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float32))
+        self.seed = config.eval_seed
+        self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
+        self.vector = BatchedVectorEnv(
+            config.env, self.num_worlds, body=config.body, **config.env_kwargs
+        )
+        self.success_return = float(self.vector.envs[0].curriculum_profile.success_return)
+
+    def run(self, policy) -> EvalResult:
+        """`policy((N, obs) float32 tensor) -> (N, act) tensor`."""
+        n_tasks = len(self.tasks)
+        returns, lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
+        successes = np.zeros(n_tasks, dtype=bool)
+        with own_random_streams(self.seed):
+            for start in range(0, n_tasks, self.num_worlds):
+                chunk = range(start, min(start + self.num_worlds, n_tasks))
+                self._play(policy, chunk, returns, lengths, successes)
+        return EvalResult(
+            self.tasks.astype(np.float64), returns, lengths, successes, self.success_return
+        )
+
+    def _play(self, policy, chunk: range, returns, lengths, successes) -> None:
+        n = self.num_worlds
+        index = [chunk[min(i, len(chunk) - 1)] for i in range(n)]  # spare worlds replay the last
+        options = [{"task": self.tasks[k]} for k in index]
+        obs, _ = self.vector.reset(seed=[self.seed + k for k in index], options=options)
+        running = np.arange(n) < len(chunk)
+        while running.any():
+            actions = policy(torch.from_numpy(np.asarray(obs, dtype=np.float32)))
+            obs, _, terminated, truncated, infos = self.vector.step(actions.cpu().numpy())
+            for i in np.flatnonzero((terminated | truncated) & running):
+                report, k = infos[INFO_KEY][i], index[i]
+                returns[k], lengths[k], successes[k] = (
+                    report["return"],
+                    report["length"],
+                    report["success"],
+                )
+                running[i] = False
+
+    def close(self) -> None:
+        self.vector.close()

@@ -1,0 +1,204 @@
+"""rsl_rl's PPO as acl3d's torch-native student: rollouts, updates and state stay on one device.
+
+rsl_rl (`pip install acl3d[rsl]`) provides the algorithm (`rsl_rl.algorithms.PPO`), the
+actor-critic MLPs with empirical observation normalisation (`rsl_rl.models.MLPModel`) and the
+rollout storage. This module adds what acl3d's runs need around them: clipping actions to the
+action bounds, bootstrapping the value of an episode cut by the time limit from its final
+observation, reward normalisation, the complete state for exact resumes, and the policy file a
+run saves (`final_model.zip`: the actor's weights and normaliser, and what built it).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import torch
+
+from acl3d.extras import optional_dependency
+
+with optional_dependency("the rsl-ppo student"):
+    from rsl_rl.algorithms import PPO
+    from rsl_rl.models import MLPModel
+    from rsl_rl.storage import RolloutStorage
+    from tensordict import TensorDict
+
+NAME = "rsl-ppo"
+POLICY_MEMBERS = ("acl3d_policy.json", "actor.pt")
+_GROUPS = {"actor": ["policy"], "critic": ["policy"]}
+
+
+def _models(spec: dict, num_envs: int, device) -> tuple[MLPModel, MLPModel, TensorDict]:
+    """The actor and critic of `spec` (sizes, hidden dims, activation, initial noise)."""
+    obs = _obs(torch.zeros(num_envs, spec["observation_size"], device=device))
+    layers = dict(hidden_dims=list(spec["hidden_dims"]), activation=spec["activation"])
+    dist = {"class_name": "GaussianDistribution", "init_std": spec["init_noise_std"]}
+    actor = MLPModel(
+        obs, _GROUPS, "actor", spec["action_size"], **layers, obs_normalization=True,
+        distribution_cfg=dist,
+    )  # fmt: skip
+    critic = MLPModel(obs, _GROUPS, "critic", 1, **layers, obs_normalization=True)
+    return actor.to(device), critic.to(device), obs
+
+
+def _obs(tensor: torch.Tensor) -> TensorDict:
+    return TensorDict({"policy": tensor}, batch_size=[tensor.shape[0]], device=tensor.device)
+
+
+class RewardNormaliser:
+    """Divides rewards by the running std of each world's discounted return (VecNormalize's
+    scheme, on tensors), clipped to [-10, 10]."""
+
+    def __init__(self, num_envs: int, gamma: float, device):
+        self.gamma = gamma
+        self.returns = torch.zeros(num_envs, dtype=torch.float64, device=device)
+        self.mean = torch.zeros((), dtype=torch.float64, device=device)
+        self.var = torch.ones((), dtype=torch.float64, device=device)
+        self.count = torch.full((), 1e-4, dtype=torch.float64, device=device)
+
+    def __call__(self, rewards: torch.Tensor, dones: torch.Tensor) -> torch.Tensor:
+        self.returns = self.returns * self.gamma + rewards
+        batch_mean, batch_var, n = (
+            self.returns.mean(),
+            self.returns.var(unbiased=False),
+            rewards.numel(),
+        )
+        delta, total = batch_mean - self.mean, self.count + n
+        m2 = self.var * self.count + batch_var * n + delta**2 * self.count * n / total
+        self.mean, self.var, self.count = self.mean + delta * n / total, m2 / total, total
+        self.returns[dones] = 0.0
+        return (rewards / torch.sqrt(self.var + 1e-8)).clamp(-10.0, 10.0).float()
+
+    def state_dict(self) -> dict:
+        return {k: getattr(self, k).clone() for k in ("returns", "mean", "var", "count")}
+
+    def load_state_dict(self, state: dict) -> None:
+        for key, value in state.items():
+            setattr(self, key, value.to(self.returns.device))
+
+
+class RslPPO:
+    """The student of one run: `act` / `record` every step, `update` after each rollout."""
+
+    def __init__(self, params: dict, observation_size: int, action_size: int, num_envs: int,
+                 device, action_low: torch.Tensor, action_high: torch.Tensor):  # fmt: skip
+        self.params, self.device = dict(params), torch.device(device)
+        self.spec = {
+            "student": NAME,
+            "observation_size": int(observation_size),
+            "action_size": int(action_size),
+            **{k: params[k] for k in ("hidden_dims", "activation", "init_noise_std")},
+        }
+        actor, critic, obs = _models(self.spec, num_envs, self.device)
+        storage = RolloutStorage(
+            "rl", num_envs, params["num_steps_per_env"], obs, [action_size], str(self.device)
+        )
+        keys = ("num_learning_epochs", "num_mini_batches", "clip_param", "gamma", "lam",
+                "value_loss_coef", "entropy_coef", "learning_rate", "max_grad_norm",
+                "use_clipped_value_loss", "schedule", "desired_kl")  # fmt: skip
+        self.alg = PPO(
+            actor, critic, storage, device=str(self.device), **{k: params[k] for k in keys}
+        )
+        self.alg.train_mode()
+        self.steps_per_env = int(params["num_steps_per_env"])
+        self.low, self.high = action_low.to(self.device), action_high.to(self.device)
+        self.rewards = (
+            RewardNormaliser(num_envs, params["gamma"], self.device)
+            if params["normalize_rewards"]
+            else None
+        )
+
+    # ------------------------------------------------------------------ the rollout
+    def act(self, obs: torch.Tensor) -> torch.Tensor:
+        """Sampled actions for the env (clipped to the action bounds; the storage keeps the
+        sampled ones, as SB3's PPO does)."""
+        return self.alg.act(_obs(obs)).clamp(self.low, self.high)
+
+    def record(self, rewards, terminated, truncated, final_obs: torch.Tensor) -> None:
+        """One step's outcome; an episode cut by the time limit is bootstrapped with the value
+        of its final observation."""
+        dones = terminated | truncated
+        if self.rewards is not None:
+            rewards = self.rewards(rewards, dones)
+        cut = truncated & ~terminated
+        if bool(cut.any()):
+            values = self.alg.critic(_obs(final_obs[cut])).squeeze(-1)
+            rewards = rewards.clone()
+            rewards[cut] += self.alg.gamma * values
+        self.alg.process_env_step(None, rewards, dones, {})
+
+    def update(self, last_obs: torch.Tensor) -> dict[str, float]:
+        self.alg.compute_returns(_obs(last_obs))
+        return self.alg.update()
+
+    @property
+    def learning_rate(self) -> float:
+        return float(self.alg.learning_rate)
+
+    @property
+    def action_std(self) -> float:
+        return float(self.alg.actor.distribution.std_param.detach().mean())
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        """V(s) of raw observations (the critic normalises them itself)."""
+        with torch.inference_mode():
+            return self.alg.critic(_obs(obs.to(self.device))).squeeze(-1)
+
+    def policy(self, obs: torch.Tensor, deterministic: bool = True) -> torch.Tensor:
+        with torch.inference_mode():
+            actions = self.alg.actor(_obs(obs.to(self.device)), stochastic_output=not deterministic)
+        return actions.clamp(self.low, self.high)
+
+    # ------------------------------------------------------------------ state
+    def state_dict(self) -> dict:
+        """Weights, normalisers, optimiser, adaptive learning rate and reward statistics."""
+        state = self.alg.save()
+        state["learning_rate"] = self.alg.learning_rate
+        state["rewards"] = None if self.rewards is None else self.rewards.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        self.alg.load(state, None, strict=True)
+        self.alg.learning_rate = float(state["learning_rate"])
+        if self.rewards is not None:
+            self.rewards.load_state_dict(state["rewards"])
+
+    def save_policy(self, path) -> None:
+        """The policy file (`POLICY_MEMBERS`): what `load_policy` needs to act."""
+        buffer = io.BytesIO()
+        torch.save({k: v.cpu() for k, v in self.alg.actor.state_dict().items()}, buffer)
+        with zipfile.ZipFile(path, "w") as z:
+            z.writestr(POLICY_MEMBERS[0], json.dumps(self.spec))
+            z.writestr(POLICY_MEMBERS[1], buffer.getvalue())
+
+
+def is_policy_file(path) -> bool:
+    """Whether `path` is a policy saved by `RslPPO.save_policy`."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return POLICY_MEMBERS[0] in z.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+class SavedPolicy:
+    """A saved rsl-ppo policy on the CPU: (N, obs) numpy -> (N, act) actions in [-1, 1]."""
+
+    def __init__(self, path):
+        path = Path(path)
+        with zipfile.ZipFile(path) as z:
+            self.spec = json.loads(z.read(POLICY_MEMBERS[0]))
+            weights = torch.load(io.BytesIO(z.read(POLICY_MEMBERS[1])), weights_only=True)
+        self.actor = _models(self.spec, 1, "cpu")[0]
+        self.actor.load_state_dict(weights)
+        self.actor.eval()
+        self.observation_size = int(self.spec["observation_size"])
+        self.action_size = int(self.spec["action_size"])
+
+    def __call__(self, obs, deterministic: bool = True):
+        x = torch.as_tensor(obs, dtype=torch.float32)
+        with torch.inference_mode():
+            actions = self.actor(_obs(x), stochastic_output=not deterministic)
+        return actions.clamp(-1.0, 1.0).numpy()

@@ -1,0 +1,334 @@
+"""One training run of a torch-native student on a `TensorVectorEnv`, resumable bit for bit.
+
+The run directory is the one the SB3 students write (config.yaml, status, episodes.csv,
+evals.csv, evals_tasks.csv, TensorBoard under RUN/tb, checkpoints, final_model.zip, the teacher
+dump), so `analyze`, `report`, `render --model` and campaigns read it unchanged. The loop:
+a rollout of `num_steps_per_env` steps on every world, one PPO update, then the periodic work
+(evaluation, the episode log, a checkpoint) at the first update at or past each multiple of its
+period, and once more at the end. Finished episodes reach the teacher during the step that ends
+them, before their world's next task is drawn.
+
+A checkpoint holds every world's running episode, the last observations, the student (weights,
+normalisers, optimiser, adaptive learning rate, reward statistics), the controller and the
+global RNG states (CUDA's too), so a run killed at any point continues from its newest
+checkpoint exactly as if it had not stopped (on the CPU; on a GPU it continues the run).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from acl3d.atomic_files import atomic_replace, atomic_state_files, temp_prefix
+from acl3d.envs.batched import MAX_ENVS
+from acl3d.envs.tensor_vector import CpuTensorVectorEnv
+from acl3d.run_format.tables import CsvLog, truncate_csv
+from acl3d.teachers.base import load_state, save_state
+from acl3d.training import checkpoint as ckpt
+from acl3d.training.config import TrainConfig, fixed_settings, student_params
+from acl3d.training.run_dir import RunDir
+from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
+from acl3d.training.torch_student import rsl_ppo
+from acl3d.training.torch_student.evaluation import WorldEvaluator
+
+EPISODE_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
+EVAL_COLUMNS = ("step", "episodes", "mastered_pct", "mean_return", "std_return", "mean_length",
+                "n_tasks", "wall_time_s")  # fmt: skip
+
+
+class _Curriculum:
+    """The worlds' task source: the controller picks each world's next task and hears every
+    finished episode once; finished episodes wait in `finished` for the episode log."""
+
+    def __init__(self, controller):
+        self.controller, self.finished, self.episodes_done, self.total_steps = controller, [], 0, 0
+
+    def next_task(self, index: int) -> np.ndarray:
+        return np.asarray(self.controller.sample_training_task()[0], dtype=np.float32)
+
+    def episode_finished(self, index: int, report: dict) -> None:
+        self.controller.record_episode(
+            report["task"], report["return"], report["length"], report["success"],
+            initial_obs=report["initial_obs"],
+        )  # fmt: skip
+        self.episodes_done += 1
+        self.finished.append((self.total_steps, index, report))
+
+
+class TorchRun:
+    """Builds the worlds, student and controller of one (new or resumed) run and trains it."""
+
+    def __init__(self, config: TrainConfig, run: RunDir, resume_from: Path | None):
+        self.config, self.run, self.resume_from = config, run, resume_from
+        env = probe_env(config)
+        try:
+            task_space, profile = probe_task_space(config, env)
+            self.task_names = task_space.flat_names()
+            self.controller = build_controller(config, task_space, profile)
+            check_test_tasks(env, self.controller.test_tasks(), self.task_names)
+        finally:
+            env.close()
+        if "step_rewards" in self.controller.needs:
+            raise ValueError(
+                f"teacher={config.teacher!r} needs every step's reward; valid with the rsl-ppo "
+                "student: teachers that learn from episode results (alp-gmm, random, riac, ...)"
+            )
+        self.params = student_params(config)
+        self.device = torch.device("cpu" if config.device == "auto" else config.device)
+        if self.device.type != "cpu":
+            raise ValueError(
+                f"device={config.device!r}; valid for rsl-ppo here: cpu (the worlds of the CPU "
+                "batched env live on the CPU; a GPU simulation is not part of this install)"
+            )
+        self.curriculum = _Curriculum(self.controller)
+        self.started, self.previous_wall_time = time.perf_counter(), 0.0
+
+    def wall_time(self) -> float:
+        return self.previous_wall_time + time.perf_counter() - self.started
+
+    # ------------------------------------------------------------------ building
+    def _build(self) -> None:
+        c = self.config
+        self.env = CpuTensorVectorEnv(
+            c.env, c.n_envs, task_source=self.curriculum, body=c.body, **c.env_kwargs
+        )
+        self.student = rsl_ppo.RslPPO(
+            self.params, self.env.observation_size, self.env.action_size, c.n_envs,
+            self.device, self.env.action_low, self.env.action_high,
+        )  # fmt: skip
+        self.evaluator = WorldEvaluator(c, self.controller.test_tasks())
+        if "value_estimator" in self.controller.needs:
+            self.controller.set_value_estimator(
+                lambda states: (
+                    self.student.value(torch.as_tensor(np.atleast_2d(states), dtype=torch.float32))
+                    .cpu()
+                    .numpy()
+                )
+            )
+
+    def _restore(self, folder: Path) -> tuple[torch.Tensor, int]:
+        state = torch.load(folder / "student.pt", weights_only=False)
+        self.student.load_state_dict(state["student"])
+        runtime = load_state(folder / "runtime")
+        self.controller.load_state_dict(load_state(folder / "controller"))
+        self.env.set_state(runtime["worlds"])
+        progress = load_state(folder / "progress")
+        self.curriculum.episodes_done = int(progress["episodes_done"])
+        self.previous_wall_time = float(progress.get("wall_time_s", 0.0))
+        ckpt.set_rng_state(load_state(folder / "rng"))
+        if state.get("cuda_rng") is not None:
+            torch.cuda.set_rng_state_all(state["cuda_rng"])
+        return torch.from_numpy(runtime["last_obs"]).to(self.device), int(progress["num_timesteps"])
+
+    # ------------------------------------------------------------------ training
+    def train(self, target: int, sections: dict, overwrite: bool) -> int:
+        """Train to `target` steps; returns the steps trained. Writes the run's start first."""
+        c, run = self.config, self.run
+        torch.manual_seed(c.seed)
+        np.random.seed(c.seed)
+        self._build()
+        try:
+            if self.resume_from is None:
+                run.create(c.to_dict(), overwrite=overwrite, **sections)
+                obs, steps = self.env.reset(seed=c.seed).to(self.device), 0
+            else:
+                obs, steps = self._restore(self.resume_from)
+                run.remove_temp_files()
+                run.restart_from(self.resume_from)
+                run.update_config(c.to_dict(), **sections)
+                for path in (run.evals_csv, run.evals_tasks_csv, run.episodes_csv):
+                    truncate_csv(path, "step", steps)
+            run.set_status("running", pid=os.getpid())
+            return self._loop(obs, steps, target)
+        finally:
+            self.env.close()
+            self.evaluator.close()
+
+    def _loop(self, obs: torch.Tensor, steps: int, target: int) -> int:
+        c, n = self.config, self.config.n_envs
+        self.episodes = CsvLog(self.run.episodes_csv, [*EPISODE_COLUMNS, *self.task_names])
+        self.evals = CsvLog(self.run.evals_csv, list(EVAL_COLUMNS))
+        self.eval_tasks = CsvLog(
+            self.run.evals_tasks_csv,
+            ["step", "task_index", "return", "length", "success", *self.task_names],
+        )
+        self.tb = _writer(self.run.tb / "train_1") if c.tensorboard else None
+        every_eval, every_ckpt = c.effective_eval_every, c.effective_checkpoint_every
+        next_eval, next_ckpt = _next(steps, every_eval), _next(steps, every_ckpt)
+        last_eval = last_ckpt = -1
+        while steps < target:
+            tick = time.perf_counter()
+            with torch.inference_mode():
+                for _ in range(self.student.steps_per_env):
+                    actions = self.student.act(obs)
+                    self.curriculum.total_steps = steps + n
+                    obs, rewards, terminated, truncated, extras = self.env.step(actions)
+                    self.student.record(rewards, terminated, truncated, extras["final_obs"])
+                    steps += n
+                    self.controller.maybe_sample_periodically(steps)
+            collect = time.perf_counter() - tick
+            losses = self.student.update(obs)
+            self._log_update(steps, losses, collect, time.perf_counter() - tick)
+            if steps >= next_eval:
+                self._evaluate(steps)
+                last_eval, next_eval = steps, _next(steps, every_eval)
+            self._log_episodes(steps)
+            if steps >= next_ckpt:
+                self._checkpoint(steps, obs)
+                last_ckpt, next_ckpt = steps, _next(steps, every_ckpt)
+        if last_eval != steps:
+            self._evaluate(steps)
+        self._log_episodes(steps)
+        if last_ckpt != steps:
+            self._checkpoint(steps, obs)
+        self._save_policy(self.run.final_model)
+        if self.tb is not None:
+            self.tb.close()
+        return steps
+
+    # ------------------------------------------------------------------ periodic work
+    def _log_update(self, steps: int, losses: dict, collect: float, total: float) -> None:
+        if self.tb is None:
+            return
+        for key, value in losses.items():
+            self.tb.add_scalar(f"train/{key}_loss", value, steps)
+        self.tb.add_scalar("train/learning_rate", self.student.learning_rate, steps)
+        self.tb.add_scalar("train/std", self.student.action_std, steps)
+        rollout = self.student.steps_per_env * self.config.n_envs
+        self.tb.add_scalar("time/fps", rollout / max(total, 1e-9), steps)
+        self.tb.add_scalar("time/collection_share", collect / max(total, 1e-9), steps)
+
+    def _log_episodes(self, steps: int) -> None:
+        finished, self.curriculum.finished = self.curriculum.finished, []
+        if not finished:
+            return
+        self.episodes.write_rows(
+            [at, i, f"{r['return']:.6g}", r["length"], int(r["success"]), int(r["truncated"]),
+             *(f"{v:.6g}" for v in r["task"])]
+            for at, i, r in finished
+        )  # fmt: skip
+        if self.tb is not None:
+            reports = [r for _, _, r in finished]
+            self.tb.add_scalar(
+                "curriculum/episode_return", np.mean([r["return"] for r in reports]), steps
+            )
+            self.tb.add_scalar(
+                "curriculum/success_rate", np.mean([r["success"] for r in reports]), steps
+            )
+            self.tb.add_scalar("curriculum/episodes", self.curriculum.episodes_done, steps)
+
+    def _evaluate(self, steps: int) -> None:
+        c = self.config
+        if c.verbose:
+            print(f"[acl3d] step {steps}: evaluating on {len(self.evaluator.tasks)} test tasks "
+                  f"({self.evaluator.num_worlds} worlds)...", flush=True)  # fmt: skip
+        result = self.evaluator.run(lambda obs: self.student.policy(obs, not c.eval_stochastic))
+        s = result.summary()
+        self.evals.write(
+            [steps, self.curriculum.episodes_done, f"{s['mastered_pct']:.4g}",
+             f"{s['mean_return']:.6g}", f"{s['std_return']:.6g}", f"{s['mean_length']:.6g}",
+             s["n_tasks"], f"{self.wall_time():.1f}"]
+        )  # fmt: skip
+        rows = []
+        for i, (task, ret, length, ok) in enumerate(
+            zip(result.tasks, result.returns, result.lengths, result.successes)
+        ):
+            self.controller.record_test_episode(task, ret, length, bool(ok))
+            rows.append([steps, i, f"{ret:.6g}", int(length), int(ok), *(f"{v:.6g}" for v in task)])
+        self.eval_tasks.write_rows(rows)
+        if self.tb is not None:
+            self.tb.add_scalar("eval/mastered_pct", s["mastered_pct"], steps)
+            self.tb.add_scalar("eval/mean_return", s["mean_return"], steps)
+        if c.verbose:
+            print(f"[acl3d] step {steps}: {s['mastered_pct']:.1f}% mastered, mean return "
+                  f"{s['mean_return']:.1f}", flush=True)  # fmt: skip
+
+    def _checkpoint(self, steps: int, obs: torch.Tensor) -> None:
+        def write(folder: Path) -> None:
+            self.student.save_policy(folder / "model.zip")
+            cuda = torch.cuda.get_rng_state_all() if torch.cuda.is_initialized() else None
+            torch.save(
+                {"student": self.student.state_dict(), "cuda_rng": cuda}, folder / "student.pt"
+            )
+            runtime = {"worlds": self.env.get_state(), "last_obs": obs.cpu().numpy()}
+            save_state(folder / "runtime", runtime)
+            save_state(folder / "controller", self.controller.state_dict())
+            save_state(folder / "rng", ckpt.rng_state())
+            progress = {
+                "num_timesteps": steps,
+                "episodes_done": self.curriculum.episodes_done,
+                "time": time.time(),
+                "wall_time_s": self.wall_time(),
+                "config": fixed_settings(self.config),
+            }
+            save_state(folder / "progress", progress)
+
+        self.run.write_checkpoint(steps, write)
+        self._dump_teacher()
+
+    def _dump_teacher(self) -> None:
+        atomic_state_files(self.run.teacher_prefix, lambda tmp: self.controller.dump(str(tmp)))
+
+    def _save_policy(self, final: Path) -> None:
+        tmp = temp_prefix(final.with_suffix("")).with_suffix(".zip")
+        self.student.save_policy(tmp)
+        atomic_replace(tmp, final)
+        self._dump_teacher()
+
+
+def _next(step: int, every: int) -> int:
+    return (step // every + 1) * every
+
+
+def _writer(path: Path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    return SummaryWriter(str(path))
+
+
+def train_run(config: TrainConfig, run: RunDir, resume_from, target: int, overwrite: bool) -> int:
+    """Train `config`'s torch-native student to `target` steps in `run` (new or resumed); the
+    run's status says finished, interrupted (Ctrl-C, SIGTERM) or crashed, as for SB3 students."""
+    torch_run = TorchRun(config, run, resume_from)  # every check before anything is written
+    sections = {
+        "student_hyperparameters": torch_run.params,
+        "resolved": {
+            "steps": target,
+            "eval_every": config.effective_eval_every,
+            "checkpoint_every": config.effective_checkpoint_every,
+            "periodical_samples_every": config.effective_periodical_samples,
+            "exclude_exploratory": False,
+            "nb_test_episodes": torch_run.controller.nb_test_episodes,
+            "eval_worlds": min(
+                len(torch_run.controller.test_tasks()), config.eval_envs or MAX_ENVS
+            ),
+        },
+    }
+    torch.set_num_threads(config.torch_threads)
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _interrupt) if in_main else None
+    try:
+        steps = torch_run.train(target, sections, overwrite)
+    except KeyboardInterrupt:
+        if run.exists():
+            run.set_status("interrupted", latest_checkpoint=run.latest_checkpoint_name())
+        raise
+    except BaseException as exc:
+        if run.exists():
+            run.set_crashed(exc)
+        raise
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
+    run.set_status("finished", steps=steps)
+    return steps
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")

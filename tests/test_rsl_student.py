@@ -1,0 +1,101 @@
+"""The rsl-ppo student: a short run writes a complete run directory, a run killed after a
+checkpoint resumes bit for bit, and its saved policy plays through `render --model`'s loader."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("rsl_rl")
+
+from acl3d.cli import main  # noqa: E402
+from acl3d.teachers.base import load_state  # noqa: E402
+from acl3d.training import students  # noqa: E402
+from acl3d.training.torch_student import presets  # noqa: E402
+from acl3d.training.torch_student.rsl_ppo import SavedPolicy  # noqa: E402
+
+STEPS = 768
+COMMON = [
+    "--student", "rsl-ppo", "--env", "stump-tracks", "--teacher", "alp-gmm", "--seed", "2",
+    "--teacher-param", "fit_rate=10", "--teacher-param", "nb_bootstrap=5",
+    "--env-kwarg", "max_episode_steps=60", "--n-envs", "4", "--nb-test-episodes", "4",
+    "--student-param", "num_steps_per_env=32", "--student-param", "hidden_dims=[32, 32]",
+    "--eval-every", "256", "--checkpoint-every", "128", "--periodical-samples-every", "256",
+    "--steps", str(STEPS), "--no-progress", "--quiet",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("rsl") / "reference"
+    assert main(["train", *COMMON, "--out", str(out)]) == 0
+    return out
+
+
+def test_short_run_writes_the_run_directory(reference):
+    for name in ("config.yaml", "episodes.csv", "evals.csv", "evals_tasks.csv", "final_model.zip"):
+        assert (reference / name).exists(), name
+    assert any((reference / "tb").rglob("events.out.tfevents.*"))
+    evals = (reference / "evals.csv").read_text().splitlines()
+    assert len(evals) == 1 + STEPS // 256
+    assert len((reference / "episodes.csv").read_text().splitlines()) > 10  # episodes of <= 60
+    policy = SavedPolicy(reference / "final_model.zip")
+    actions = policy(np.zeros((3, policy.observation_size), np.float32))
+    assert actions.shape == (3, 4) and np.all(np.abs(actions) <= 1)
+
+
+def _read_latest(run: Path) -> str | None:
+    try:
+        return (run / "checkpoints" / "LATEST").read_text().strip()
+    except OSError:
+        return None
+
+
+def test_sigkilled_run_resumes_bit_identically(reference, tmp_path, checkout):
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "acl3d", "train", *COMMON, "--out", str(out)]
+    proc = subprocess.Popen(cmd, cwd=checkout, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 300
+        while _read_latest(out) is None and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, err.decode()[-2000:]
+    assert not (out / "final_model.zip").exists()
+    assert main(["train", "--resume", str(out), "--no-progress", "--quiet"]) == 0
+    for name in ("evals_tasks.csv", "episodes.csv"):
+        assert (reference / name).read_text() == (out / name).read_text(), name
+    dump_a, dump_b = load_state(reference / "teacher"), load_state(out / "teacher")
+    for key in ("sampled_tasks", "train_returns", "test_returns"):
+        for x, y in zip(np.atleast_1d(dump_a[key]), np.atleast_1d(dump_b[key]), strict=True):
+            np.testing.assert_array_equal(x, y, err_msg=key)
+    a, b = (
+        torch.load(p / "checkpoints" / _read_latest(p) / "student.pt") for p in (reference, out)
+    )
+    for key, value in a["student"]["actor_state_dict"].items():
+        assert torch.equal(value, b["student"]["actor_state_dict"][key]), key
+
+
+def test_presets_and_checks():
+    assert students.is_on_policy("rsl-ppo")
+    fast = students.hyperparameters("rsl-ppo", "fast", 16)
+    assert fast["num_steps_per_env"] == 128 and fast["hidden_dims"] == [128, 128]
+    assert students.collection_steps("rsl-ppo", fast, 16) == 2048
+    bench = presets.hyperparameters("benchmark", 4096)
+    assert bench["num_steps_per_env"] == 24 and bench["hidden_dims"] == [256, 128, 64]
+    with pytest.raises(ValueError, match=r"student_params\['learning_rate'\]=-1"):
+        presets.hyperparameters("fast", 16, {"learning_rate": -1})
+    with pytest.raises(ValueError, match="unknown student parameter 'n_steps' for rsl-ppo"):
+        presets.hyperparameters("fast", 16, {"n_steps": 5})
+    with pytest.raises(ValueError, match=r"hidden_dims"):
+        presets.hyperparameters("fast", 16, {"hidden_dims": [0]})
