@@ -52,6 +52,10 @@ class CurriculumProfile:
         default_test_grid: {parameter: (min, max)}; when the task space has exactly these
             parameters, the default test set is the regular grid over these ranges (TeachMyAgent's
             fixed Stump Tracks set); otherwise the default is uniform in the bounds.
+        easy_at_high: the parameters whose easy end is their upper bound (Stump Tracks'
+            obstacle_spacing: wide gaps are easy); every other parameter is easiest at its lower
+            bound. Where a curriculum starts and which way it walks (the Oracle's window, ADR's
+            first box, GoalGAN's first goals) follows from it.
     """
 
     name: str | None = None
@@ -61,6 +65,7 @@ class CurriculumProfile:
     initial_dist: InitialDist | None = None
     test_sets: Mapping[str, TestSetBuilder] = field(default_factory=dict)
     default_test_grid: Mapping[str, tuple[float, float]] | None = None
+    easy_at_high: frozenset[str] = frozenset()
 
     def __post_init__(self):
         if self.name is not None and not isinstance(self.name, str):
@@ -88,6 +93,18 @@ class CurriculumProfile:
                 for k, v in dict(self.default_test_grid).items()
             }
             set_(self, "default_test_grid", grid)
+        names = self.easy_at_high
+        if isinstance(names, str) or not all(isinstance(n, str) for n in names):
+            raise validation.fail("easy_at_high", names, "a collection of parameter names")
+        set_(self, "easy_at_high", frozenset(names))
+
+    def easy_directions(self, task_space) -> np.ndarray:
+        """(d,) +1 where a dimension gets harder upwards, -1 where it gets harder downwards."""
+        return easy_directions(task_space, self.easy_at_high)
+
+    def easy_task(self, task_space) -> np.ndarray:
+        """The easiest task of `task_space`: every dimension at its easy bound."""
+        return easy_task(task_space, self.easy_at_high)
 
     def initial_distribution(self, task_space) -> dict[str, np.ndarray] | None:
         """The easy-task Gaussian for `task_space`, or None when the environment gives none."""
@@ -99,3 +116,21 @@ class CurriculumProfile:
         """`episode_return` mapped linearly from `reward_bounds` to [0, 1], clamped."""
         lb, ub = self.reward_bounds
         return float(np.clip((episode_return - lb) / (ub - lb), 0.0, 1.0))
+
+
+def easy_directions(task_space, easy_at_high=frozenset()) -> np.ndarray:
+    """(d,) +1 for the dimensions easiest at their lower bound, -1 for those of the parameters
+    named in `easy_at_high` (names the space lacks are ignored: a profile serves many spaces)."""
+    space = TaskSpace.coerce(task_space)
+    if isinstance(easy_at_high, str) or not all(isinstance(n, str) for n in easy_at_high):
+        raise validation.fail("easy_at_high", easy_at_high, "a collection of parameter names")
+    directions = np.ones(space.dim)
+    for name in set(easy_at_high) & set(space.names):
+        directions[space.slice(name)] = -1.0
+    return directions
+
+
+def easy_task(task_space, easy_at_high=frozenset()) -> np.ndarray:
+    """The easiest task of `task_space`: every dimension at its easy bound."""
+    space = TaskSpace.coerce(task_space)
+    return np.where(easy_directions(space, easy_at_high) > 0, space.low, space.high)

@@ -21,11 +21,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
 from acl3d.validation import fail, real_array
 
 MASTERED = 75  # competence above which a cube counts as mastered (and unlocks its successors)
 SUCCESS_REWARD = MASTERED / 100  # reward above which an episode counts as a success for teachers
+
+
+def _origin_prior(space: TaskSpace) -> dict[str, np.ndarray]:
+    """A narrow Gaussian at the origin corner, where the first cube is learnable."""
+    return {"mean": np.zeros(space.dim), "variance": np.eye(space.dim) * 1e-4}
 
 
 class ToyEnv:
@@ -81,6 +87,19 @@ class ToyEnv:
             )
         )
 
+    @property
+    def curriculum_profile(self) -> CurriculumProfile:
+        """The toy's curriculum facts: returns are competences in [0, 1], an episode succeeds
+        on a mastered cube (ADR expands on those and shrinks on locked cubes, return 0), and the
+        easy tasks are at the origin corner (ADR's start, the prior at expert knowledge high)."""
+        return CurriculumProfile(
+            name="toy",
+            reward_bounds=(0.0, 1.0),
+            success_return=SUCCESS_REWARD,
+            adr_reward_thresholds=(0.0, SUCCESS_REWARD),
+            initial_dist=_origin_prior,
+        )
+
     def cube_of(self, task) -> tuple[int, ...]:
         p = np.asarray(task, dtype=np.float64)
         if p.shape != (self.task_dim,) or not np.all(np.isfinite(p)):
@@ -127,32 +146,6 @@ class ToyEnv:
     def score(self) -> float:
         """Percentage of cubes with competence > 75."""
         return float(100.0 * (self.competence > MASTERED).mean())
-
-
-def toy_teacher_params(name: str, env: ToyEnv) -> dict:
-    """What reward-threshold teachers need on the toy, whose returns are competences in [0, 1].
-
-    ADR expands a bound whose boundary episodes average >= 0.75 (mastered) and shrinks it when
-    they all return 0 (a locked cube); it starts at the origin corner, the toy's expert knowledge
-    (ADR needs a feasible start). The oracle moves its window once the window averages > 0.75.
-    Self-paced schedules count environment steps; a toy episode is one step, so they are rescaled
-    to update every 250 episodes after the first 1000. Terrain levels start at the origin and
-    move up on a mastered cube, down on a locked one.
-    """
-    if name == "adr":
-        d = env.task_dim
-        return {
-            "min_reward_thr": 0.0,
-            "max_reward_thr": SUCCESS_REWARD,
-            "initial_dist": {"mean": np.zeros(d), "variance": np.eye(d) * 1e-4},
-        }
-    if name == "oracle":
-        return {"reward_thr": SUCCESS_REWARD}
-    if name == "self-paced":
-        return {"update_frequency": 250, "update_offset": 1000}
-    if name == "terrain-levels":  # promote on a mastered cube, demote on a locked one (return 0)
-        return {"promote_return": SUCCESS_REWARD, "demote_return": 0.005, "max_init_level": 0}
-    return {}
 
 
 @dataclass

@@ -13,8 +13,8 @@ For each preset (teachDeepRL / TeachMyAgent-benchmark hyper-parameters), variant
 1000 episodes (process time inside sample_task/updates only), next to the original teachDeepRL
 code's results where they were measured. Teachers whose module cannot be imported are skipped.
 Teachers that need more than returns get what `acl3d.toy.run_teacher` gives (success, one-step
-episodes, a learner-value proxy); ADR, the oracle and terrain levels get toy thresholds
-(`toy_teacher_params`). A teacher that both presets configure alike runs once.
+episodes, a learner-value proxy); the toy's facts (thresholds, easy corner) come from its
+curriculum profile and each teacher's own toy settings (`toy_teacher_params`). A teacher that both presets configure alike runs once.
 
 `--reference` also runs the original algorithms (`scripts/reference_teachers.py`: ALP-GMM,
 Covar-GMM, RIAC as published, teachDeepRL defaults) on the same variants and seeds, and reports
@@ -54,8 +54,9 @@ from threadpoolctl import threadpool_limits
 from acl3d.task_space import TaskSpace
 from acl3d.teachers import TEACHERS, make, teacher_class
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
+from acl3d.teachers.expert_knowledge import toy_teacher_params
 from acl3d.teachers.presets import PRESETS, preset_params
-from acl3d.toy import MASTERED, ToyEnv, run_teacher, toy_teacher_params
+from acl3d.toy import MASTERED, ToyEnv, run_teacher
 
 VARIANTS = ("plain", "irrelevant", "noise", "shuffled", "unfeasible")
 # The original teachDeepRL code (tDRL defaults) on the same problems, 20k episodes: the 2-D toy
@@ -155,7 +156,9 @@ def bench_one(
     if preset is None:
         teacher = make_reference(name, space, seed)
     else:
-        params = preset_params(preset, name) | toy_teacher_params(name, env)
+        params = preset_params(preset, name) | toy_teacher_params(
+            name, env.curriculum_profile, env.task_space()
+        )
         teacher = make(name, space, seed=seed, **params)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
@@ -253,7 +256,9 @@ def main(argv=None) -> int:
     available = []
     for n in names:
         try:
-            make(n, ToyEnv().task_space(), seed=0, **toy_teacher_params(n, ToyEnv()))
+            toy = ToyEnv()
+            space = toy.task_space()
+            make(n, space, seed=0, **toy_teacher_params(n, toy.curriculum_profile, space))
             available.append(n)
         except (ImportError, ValueError) as exc:  # not written yet, or needs inputs the toy lacks
             print(f"skipping {n}: {exc}", file=sys.stderr)

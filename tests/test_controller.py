@@ -312,9 +312,15 @@ def test_expert_knowledge_table():
     )
     low = expert_knowledge(STUMP_TRACKS, space, "low")
     assert all("initial_dist" not in kw for kw in low.values())
-    assert low["adr"] == {"min_reward_thr": 0.0, "max_reward_thr": 180.0}
-    assert expert_knowledge(PARKOUR, space, "high") == low  # no prior for Parkour
-    assert expert_knowledge(None, space, "high") == low  # nor for an env without a profile
+    # the easy side is the environment's fact, given at every level (where ADR starts)
+    easy = ["obstacle_spacing"]
+    assert low["adr"] == {"min_reward_thr": 0.0, "max_reward_thr": 180.0, "easy_at_high": easy}
+    assert low["oracle"]["easy_at_high"] == easy and low["goal-gan"]["easy_at_high"] == easy
+    for profile in (PARKOUR, None):  # no prior for Parkour, nor for an env without a profile
+        assert expert_knowledge(profile, space, "high") == expert_knowledge(profile, space, "low")
+        assert all(
+            "initial_dist" not in kw for kw in expert_knowledge(profile, space, "high").values()
+        )
     np.testing.assert_allclose(
         STUMP_TRACKS.initial_distribution({"stump_height": [1, 3], "obstacle_spacing": [0, 6]})[
             "mean"

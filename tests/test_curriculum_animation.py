@@ -10,7 +10,8 @@ from acl3d.cli import main
 from acl3d.run_format.tables import read_csv
 from acl3d.teachers import make
 from acl3d.teachers.base import load_state
-from acl3d.toy import ToyEnv, run_teacher, toy_teacher_params
+from acl3d.teachers.expert_knowledge import toy_teacher_params
+from acl3d.toy import ToyEnv, run_teacher
 from acl3d.training.curriculum_animation import curriculum_frames, teacher_states
 from acl3d.training.run_dir import RunDir
 
@@ -79,7 +80,7 @@ def test_a_directory_that_is_not_a_run_is_refused(tmp_path, capsys):
 def test_the_last_rebuilt_state_is_the_teachers_own(name, params):
     """Each teacher's book-keeping, replayed, ends at the state the teacher itself plots."""
     env = ToyEnv(seed=0)
-    params = {**toy_teacher_params(name, env), **params}
+    params = {**toy_teacher_params(name, env.curriculum_profile, env.task_space()), **params}
     teacher = make(name, env.task_space(), seed=0, **params)
     run_teacher(teacher, env, 400)
     dump = {"teacher": name, "teacher_bk": teacher.dump(), "low": [0, 0], "high": [1, 1]}

@@ -164,6 +164,43 @@ def test_teachers_name_no_environment():
     assert not bad, f"environment names in teacher code: {bad}"
 
 
+def _compared_strings(path: Path):
+    """String constants a module compares with (==, in, ...), uses as dict keys or matches."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            items = [
+                e for c in sides if isinstance(c, (ast.Tuple, ast.List, ast.Set)) for e in c.elts
+            ]
+            consts = [*sides, *items]
+        elif isinstance(node, ast.Dict):
+            consts = [k for k in node.keys if k is not None]
+        elif isinstance(node, ast.MatchValue):
+            consts = [node.value]
+        else:
+            continue
+        yield from (
+            (node.lineno, c.value)
+            for c in consts
+            if isinstance(c, ast.Constant) and isinstance(c.value, str)
+        )
+
+
+def test_only_teachers_test_a_teachers_name():
+    """What a teacher needs elsewhere (plots, the toy, the training loop) it declares on its class;
+    no module outside acl3d/teachers branches on its name."""
+    from acl3d.teachers import TEACHERS
+
+    bad = [
+        f"{path.relative_to(ROOT)}:{line}: {text!r}"
+        for path in sorted(ROOT.rglob("*.py"))
+        if "teachers" not in path.relative_to(ROOT).parts
+        for line, text in _compared_strings(path)
+        if text in TEACHERS
+    ]
+    assert not bad, f"teacher names tested outside acl3d/teachers: {bad}"
+
+
 def test_no_import_cycles():
     state: dict[str, int] = {}  # 1: on the current path, 2: done
     cycles = []

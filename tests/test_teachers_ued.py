@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from acl3d.teachers import make
+from acl3d.teachers.expert_knowledge import toy_teacher_params
 from acl3d.teachers.plr import positive_value_loss
-from acl3d.toy import ToyEnv, run_teacher, toy_teacher_params
+from acl3d.toy import ToyEnv, run_teacher
 
 SPACE = {"x": [0.0, 1.0], "y": [0.0, 2.0]}
 
@@ -189,7 +190,10 @@ def test_value_driven_teachers_beat_random_on_the_toy(name):
 def test_terrain_levels_climb_the_toy_diagonal():
     env = ToyEnv(seed=0)
     tl = make(
-        "terrain-levels", env.task_space(), seed=0, **toy_teacher_params("terrain-levels", env)
+        "terrain-levels",
+        env.task_space(),
+        seed=0,
+        **toy_teacher_params("terrain-levels", env.curriculum_profile, env.task_space()),
     )
     run_teacher(tl, env, 3000)
     assert tl.levels.mean() >= 2 and env.score() >= 3.0

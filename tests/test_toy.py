@@ -105,7 +105,7 @@ def test_toy_cli_prints_scores_and_writes_a_gif(tmp_path, capsys):
             str(gif),
             "--gif-every",
             "200",
-            "--param",
+            "--teacher-param",
             "max_region_size=40",
         ]
     )
@@ -126,7 +126,9 @@ def test_toy_cli_unfeasible_space_with_ued_teachers(tmp_path, capsys, teacher):
 
 
 def test_toy_cli_rejects_bad_parameters(capsys):
-    assert main(["toy", "--teacher", "alp-gmm", "--episodes", "10", "--param", "bogus=1"]) == 2
+    assert (
+        main(["toy", "--teacher", "alp-gmm", "--episodes", "10", "--teacher-param", "bogus=1"]) == 2
+    )
     assert "bogus" in capsys.readouterr().err
 
 

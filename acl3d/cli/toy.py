@@ -6,8 +6,9 @@ import argparse
 import json
 
 from acl3d.teachers import TEACHERS, make
+from acl3d.teachers.expert_knowledge import toy_teacher_params
 from acl3d.teachers.presets import PRESETS, preset_params
-from acl3d.toy import ToyEnv, run_teacher, toy_teacher_params
+from acl3d.toy import ToyEnv, run_teacher
 
 
 def _param(text: str) -> tuple[str, object]:
@@ -55,7 +56,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--teacher-param",
-        "--param",  # the older spelling
         dest="param",
         type=_param,
         action="append",
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     )
     params = (
         preset_params(args.preset, args.teacher)
-        | toy_teacher_params(args.teacher, env)
+        | toy_teacher_params(args.teacher, env.curriculum_profile, env.task_space())
         | dict(args.param)
     )
     teacher = make(args.teacher, env.task_space(), seed=args.seed, **params)

@@ -12,6 +12,9 @@ next to the environments, and reaches the teachers through `env.unwrapped.curric
   (clipped into the bounds), variance 0.01; Parkour: none;
 * test sets: the fixed Stump Tracks grid (stump_height in [0, 3] x obstacle_spacing in [0, 6])
   is the default for the 2-D stump space; Parkour names its walking, climbing and swimming sets.
+* the easy side of each parameter: its lower bound, except Stump Tracks' obstacle_spacing
+  (wide gaps are easy; teachDeepRL's oracle walks it downwards) and 3D Terrain's
+  `EASY_AT_HIGH` parameters;
 * 3D Terrain: the success flag is crossing the finish line (returns of crossings are ~250-330);
   the prior is centred on the easy corner (no blocks, no slopes, widest spacing), variance
   (0.1 * range)^2; the "graded" test set runs from flat ground to the hardest corner.
@@ -55,6 +58,7 @@ STUMP_TRACKS = CurriculumProfile(
     success_return=SUCCESS_RETURN,
     initial_dist=_stump_initial_dist,
     default_test_grid={"stump_height": (0.0, 3.0), "obstacle_spacing": (0.0, 6.0)},
+    easy_at_high=frozenset({"obstacle_spacing"}),
 )
 
 HEXAGON_TRACKS = CurriculumProfile(
@@ -88,4 +92,5 @@ TERRAIN3D = CurriculumProfile(
     success_return=SUCCESS_RETURN,
     initial_dist=_terrain3d_initial_dist,
     test_sets={"graded": terrain3d_test_sets.graded},
+    easy_at_high=frozenset(terrain3d_test_sets.EASY_AT_HIGH),
 )

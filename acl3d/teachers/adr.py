@@ -6,6 +6,17 @@ current bounds; the returns of those boundary episodes fill a queue per bound, a
 `queue_len` of them the bound moves outwards by `step_size` (task units) when their mean is
 >= `max_reward_thr`, or inwards when it is <= `min_reward_thr`.
 
+Where the box starts: the mean of `initial_dist` when given (expert knowledge "high"), else the
+environment's easiest task (`start="easy"`, every dimension at the easy bound its
+`CurriculumProfile` declares), as in OpenAI's ADR, which grows from the nominal environment;
+`start="random"` is TeachMyAgent's start under expert knowledge "low" (a uniform task). A random
+start is why stump-v1's ADR runs of seeds 0-2 never moved: their start was too hard for a mean
+return >= `max_reward_thr`, and a collapsed box cannot shrink, so each trained on one task.
+
+What stays inherent: the box grows only where the boundary episodes average
+>= `max_reward_thr` (180 on the tracks), so a student that never reaches that on its start
+keeps a single task; a bound at its global limit is never tested again.
+
 Deliberate differences from TeachMyAgent's ADR:
 - a queue is fed only by the episodes whose task was boundary-sampled on that bound (remembered
   per sampled task, so several tasks may be in flight); TMA fed every queue whose bound happened to
@@ -25,9 +36,11 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
-from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.curriculum_profile import CurriculumProfile, easy_task
+from acl3d.teachers import histories
 from acl3d.teachers.base import RunFacts, Teacher
 
+STARTS = ("easy", "random")
 MAX_PENDING = 4096  # boundary-sampled tasks awaiting their return (older ones are forgotten)
 LOW, HIGH = 0, 1
 
@@ -40,10 +53,27 @@ class ADR(Teacher):
     return_params = ("min_reward_thr", "max_reward_thr")
 
     @classmethod
+    def plot_history(cls, bk, low, high, steps):
+        """The box after each change."""
+        return histories.boxes(bk)
+
+    @classmethod
+    def toy_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """A box grown from a random toy task may never see a return: start at the toy's prior
+        (its origin corner, the one cube learnable from the start)."""
+        return {"initial_dist": facts.initial_dist}
+
+    @classmethod
     def run_params(cls, facts: RunFacts) -> dict[str, Any]:
-        """The environment's reward thresholds, and its easy-task prior when known."""
+        """The environment's reward thresholds and easy side, and its easy-task prior when
+        known."""
         low, high = facts.profile.adr_reward_thresholds
-        return {"min_reward_thr": low, "max_reward_thr": high, **super().run_params(facts)}
+        return {
+            "min_reward_thr": low,
+            "max_reward_thr": high,
+            "easy_at_high": sorted(facts.profile.easy_at_high),
+            **super().run_params(facts),
+        }
 
     def __init__(
         self,
@@ -56,8 +86,11 @@ class ADR(Teacher):
         min_reward_thr: float = CurriculumProfile.adr_reward_thresholds[0],
         max_reward_thr: float = CurriculumProfile.adr_reward_thresholds[1],
         initial_dist: dict | None = None,
+        start: str = "easy",
+        easy_at_high=CurriculumProfile.easy_at_high,
     ):
         super().__init__(task_space, seed)
+        validation.choice("start", start, STARTS)
         validation.positive("step_size", step_size)
         validation.real("boundary_sampling_p", boundary_sampling_p, 0.0, 1.0)
         validation.count("queue_len", queue_len)
@@ -73,17 +106,19 @@ class ADR(Teacher):
         self.min_reward_thr, self.max_reward_thr = float(min_reward_thr), float(max_reward_thr)
         if initial_dist is not None:
             try:
-                start = np.asarray(initial_dist["mean"], dtype=np.float64).reshape(self.dim)
+                mean = np.asarray(initial_dist["mean"], dtype=np.float64).reshape(self.dim)
             except (KeyError, TypeError, ValueError):
                 raise ValueError(
                     f"initial_dist must be a dict with a 'mean' of length {self.dim}, got {initial_dist!r}"
                 ) from None
-            if not np.all(np.isfinite(start)):
-                raise ValueError(f"initial_dist mean must be finite, got {start}")
-            start = self.clip(start)
+            if not np.all(np.isfinite(mean)):
+                raise ValueError(f"initial_dist mean must be finite, got {mean}")
+            first = self.clip(mean)
+        elif start == "easy":
+            first = easy_task(self.task_space, easy_at_high)
         else:
-            start = self.uniform_task()
-        self.cur_low, self.cur_high = start.copy(), start.copy()
+            first = self.uniform_task()
+        self.cur_low, self.cur_high = first.copy(), first.copy()
         self.queues: list[list[list[float]]] = [[[] for _ in range(self.dim)] for _ in (LOW, HIGH)]
         self.pending: OrderedDict[bytes, tuple[int, int, float]] = OrderedDict()
         self.bk["task_space"].append((self.cur_low.copy(), self.cur_high.copy()))

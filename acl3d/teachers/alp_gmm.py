@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from acl3d.teachers import histories
 from acl3d.teachers.gmm import GMMTeacherBase
 
 
@@ -113,6 +114,11 @@ class ALPGMM(GMMTeacherBase):
 
     name = "alp-gmm"
     uses_initial_dist = True
+
+    @classmethod
+    def plot_history(cls, bk, low, high, steps):
+        """The fitted mixtures, coloured by ALP (as it samples)."""
+        return histories.mixtures(bk, len(low), by_alp=True)
 
     def __init__(
         self,

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from acl3d.teachers import histories
 from acl3d.teachers.gmm import GMMTeacherBase
 
 
@@ -25,6 +26,11 @@ class CovarGMM(GMMTeacherBase):
 
     name = "covar-gmm"
     uses_initial_dist = True
+
+    @classmethod
+    def plot_history(cls, bk, low, high, steps):
+        """The fitted mixtures, coloured by weight."""
+        return histories.mixtures(bk, len(low), by_alp=False)
 
     def __init__(
         self,

@@ -6,9 +6,24 @@ goals the least-squares GAN is trained for `gan_train_iters` iterations so that 
 proposes goals the discriminator believes are of intermediate difficulty. With probability
 `p_old` an earlier mastered goal is replayed (with noise) to fight forgetting.
 
+Where it starts: the GAN is pretrained on goals around the environment's easiest task
+(`pretrain_around="easy"`, a Gaussian of std 10% of the range at the easy bounds its
+`CurriculumProfile` declares), or on `initial_dist` when given: the paper pretrains on the goals
+the initial policy reaches, i.e. easy ones. `pretrain_around="random"` is TeachMyAgent's start
+under expert knowledge "low" (a Gaussian at a uniform random task); it is why stump-v1's GoalGAN
+runs succeeded only where that random centre had low stumps.
+
+The generator's tanh output spans twice the task space and is clipped (the paper's and
+TeachMyAgent's map), so the bounds sit at tanh = +-0.5. An earlier acl3d version mapped it onto
+exactly the space: goals on a bound (the easy corner of Stump Tracks) then needed a saturated
+tanh, the pretrained generator collapsed onto the corner, every goal it proposed was mastered,
+no goal was of intermediate difficulty and the GAN never trained again.
+
+What stays inherent: the GAN is trained only when some goal of the last `update_size` got a
+GOID label (with 2 rollouts: exactly one success), so it does not move while every generated
+goal fails (or every one succeeds); exploration around it is the `state_noise_level` noise.
+
 Differences from TeachMyAgent's version (why):
-* The generator's tanh output is mapped onto exactly the task space (centre + o * half-range);
-  the original maps it onto twice the space and clips, piling mass onto the bounds.
 * All randomness comes from the teacher's seeded numpy and torch generators; the original
   reseeds the global numpy RNG and torch.
 * Outcomes are matched to pending goals by value (within 1e-4 of the range), not by call order,
@@ -25,6 +40,7 @@ import torch
 from torch import nn
 
 from acl3d import validation
+from acl3d.curriculum_profile import CurriculumProfile, easy_task
 from acl3d.teachers.base import RunFacts, Teacher
 from acl3d.teachers.torch_utils import (
     check_positive,
@@ -37,6 +53,8 @@ from acl3d.teachers.torch_utils import (
     optimizer_state,
     seeded_generator,
 )
+
+PRETRAIN_CENTRES = ("easy", "random")
 
 
 class _LeakyReLU(nn.LeakyReLU):
@@ -53,8 +71,13 @@ class GoalGAN(Teacher):
 
     @classmethod
     def run_params(cls, facts: RunFacts) -> dict[str, Any]:
-        """Pretrained on the easy-task prior when known (else on a random Gaussian)."""
-        return {"use_pretrained_samples": True, **super().run_params(facts)}
+        """Pretrained on the easy-task prior when known, else around the environment's easy
+        side."""
+        return {
+            "use_pretrained_samples": True,
+            "easy_at_high": sorted(facts.profile.easy_at_high),
+            **super().run_params(facts),
+        }
 
     def __init__(
         self,
@@ -76,8 +99,11 @@ class GoalGAN(Teacher):
         generator_hidden: tuple[int, ...] = (256, 256),
         discriminator_hidden: tuple[int, ...] = (128, 128),
         lr: float = 1e-3,
+        pretrain_around: str = "easy",
+        easy_at_high=CurriculumProfile.easy_at_high,
     ):
         super().__init__(task_space, seed)
+        validation.choice("pretrain_around", pretrain_around, PRETRAIN_CENTRES)
         self.state_noise_level = check_positive(
             "state_noise_level", state_noise_level, allow_zero=True
         )
@@ -130,20 +156,27 @@ class GoalGAN(Teacher):
         if use_pretrained_samples:
             nb = check_positive("nb_pretrain_samples", nb_pretrain_samples, integer=True)
             iters = check_positive("pretrain_iters", pretrain_iters, integer=True)
+            if initial_dist is None:
+                centre = (
+                    easy_task(self.task_space, easy_at_high)
+                    if pretrain_around == "easy"
+                    else self.rng.uniform(self.mins, self.maxs)
+                )
+                initial_dist = {"mean": centre, "variance": np.diag((0.1 * self.span) ** 2)}
             self._pretrain(initial_dist, nb, iters)
 
     # ------------------------------------------------------------------ coordinates
     def _to_unit(self, goals: np.ndarray) -> np.ndarray:
-        """Task space -> [-1, 1]^d (constant dimensions -> 0)."""
+        """Task space -> [-0.5, 0.5]^d (constant dimensions -> 0)."""
         return np.divide(
             goals - self.centre,
-            self.half_range,
+            2 * self.half_range,
             out=np.zeros_like(goals),
             where=self.half_range > 0,
         )
 
     def _from_unit(self, out: np.ndarray) -> np.ndarray:
-        return self.clip(self.centre + out * self.half_range)
+        return self.clip(self.centre + out * 2 * self.half_range)
 
     # ------------------------------------------------------------------ GAN
     def _generate(self, n: int, gen: torch.Generator | None = None) -> np.ndarray:
@@ -174,20 +207,17 @@ class GoalGAN(Teacher):
         self.bk["gen_log_loss"].append(float(g_loss.detach()))
 
     def _pretrain(self, initial_dist, nb: int, iters: int) -> None:
-        """Train on `nb` positives from initial_dist (else a random Gaussian of std 10% range)."""
-        if initial_dist is None:
-            mean, cov = self.rng.uniform(self.mins, self.maxs), np.diag((0.1 * self.span) ** 2)
-        else:
-            try:
-                mean = np.asarray(initial_dist["mean"], dtype=np.float64).reshape(self.dim)
-                cov = np.asarray(initial_dist["variance"], dtype=np.float64)
-                cov = np.diag(cov) if cov.shape == (self.dim,) else cov.reshape(self.dim, self.dim)
-            except (KeyError, TypeError, ValueError) as exc:
-                raise ValueError(
-                    f"initial_dist must be {{'mean': ({self.dim},), 'variance': ({self.dim}, {self.dim})}}, got {initial_dist!r} ({exc})"
-                ) from None
-            if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
-                raise ValueError("initial_dist: mean and variance must be finite")
+        """Train on `nb` positives drawn from the Gaussian `initial_dist`."""
+        try:
+            mean = np.asarray(initial_dist["mean"], dtype=np.float64).reshape(self.dim)
+            cov = np.asarray(initial_dist["variance"], dtype=np.float64)
+            cov = np.diag(cov) if cov.shape == (self.dim,) else cov.reshape(self.dim, self.dim)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(
+                f"initial_dist must be {{'mean': ({self.dim},), 'variance': ({self.dim}, {self.dim})}}, got {initial_dist!r} ({exc})"
+            ) from None
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise ValueError("initial_dist: mean and variance must be finite")
         samples = self.clip(self.rng.multivariate_normal(mean, cov, size=nb, method="eigh"))
         self._train(samples, np.ones(nb), iters)
 

@@ -4,8 +4,11 @@ Tasks are drawn uniformly in a window of width `window_ratio` x range per dimens
 `step_rate` episodes, if the mean return of those episodes exceeds `reward_thr`, the window moves
 by `window_step_vector` (task units, clamped so it stays inside the bounds). A positive step
 starts the window at the lower bound, a negative one at the upper bound. The expert knowledge is
-in the step vector: its signs say where the easy tasks are. In a training run `reward_thr` is the
-environment's success return (its `CurriculumProfile`) unless the run sets it.
+in the step vector: its signs say where the easy tasks are. Without an explicit vector the step
+is range/30 per dimension (teachDeepRL's 0.1 and 0.2 on Stump Tracks' [0, 3] x [0, 6]) pointing
+away from the easy side the environment declares (`CurriculumProfile.easy_at_high`): on Stump
+Tracks [+0.1, -0.2] from height 0 and spacing 6, as teachDeepRL's oracle. In a training run
+`reward_thr` is the environment's success return unless the run sets it.
 """
 
 from __future__ import annotations
@@ -15,21 +18,25 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
-from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.curriculum_profile import CurriculumProfile, easy_directions
 from acl3d.teachers.base import RunFacts, Teacher
 
 
 class Oracle(Teacher):
-    """teachDeepRL's sliding-window oracle; default step: +range/30 in every dimension."""
+    """teachDeepRL's sliding-window oracle; default step: range/30 from the easy side."""
 
     name = "oracle"
     return_params = ("reward_thr",)
 
     @classmethod
     def run_params(cls, facts: RunFacts) -> dict[str, Any]:
-        """The window moves on when its episodes succeed on average: the environment's
-        success return."""
-        return {"reward_thr": facts.profile.success_return, **super().run_params(facts)}
+        """The window starts at the environment's easy side and moves on when its episodes
+        succeed on average (the environment's success return)."""
+        return {
+            "reward_thr": facts.profile.success_return,
+            "easy_at_high": sorted(facts.profile.easy_at_high),
+            **super().run_params(facts),
+        }
 
     def __init__(
         self,
@@ -40,11 +47,12 @@ class Oracle(Teacher):
         step_rate: int = 50,
         reward_thr: float = CurriculumProfile.success_return,
         window_ratio: float = 1 / 6,
+        easy_at_high=CurriculumProfile.easy_at_high,
     ):
         super().__init__(task_space, seed)
         span = self.maxs - self.mins
         if window_step_vector is None:
-            step = span / 30.0
+            step = easy_directions(self.task_space, easy_at_high) * span / 30.0
         else:
             step = np.asarray(window_step_vector, dtype=np.float64).reshape(-1)
             if step.shape != (self.dim,) or not np.all(np.isfinite(step)):

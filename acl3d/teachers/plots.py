@@ -22,11 +22,6 @@ from typing import Any
 import numpy as np
 
 
-def _plot_state(teacher) -> dict[str, Any] | None:
-    fn = getattr(teacher, "plot_state", None)
-    return fn() if callable(fn) else None
-
-
 class SamplingRecorder:
     """Observer for `acl3d.toy.run_teacher`: one frame per `every` episodes.
 
@@ -46,7 +41,7 @@ class SamplingRecorder:
         self.teacher, self.every, self.background = teacher, int(every), background
         self.background_extent = background_extent  # (x0, x1, y0, y1); default: the task space
         self.frames: list[dict[str, Any]] = []
-        self._state = _plot_state(teacher)
+        self._state = teacher.plot_state()
         self._tasks: list[np.ndarray] = []
         self._values: list[float] = []
 
@@ -66,7 +61,7 @@ class SamplingRecorder:
                     "background_extent": self.background_extent,
                 }
             )
-            self._state = _plot_state(self.teacher)
+            self._state = self.teacher.plot_state()
             self._tasks, self._values = [], []
 
 

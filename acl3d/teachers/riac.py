@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from acl3d import validation
+from acl3d.teachers import histories
 from acl3d.teachers.base import Teacher
 from acl3d.teachers.gmm import pick_many, pick_proportional
 
@@ -69,6 +70,11 @@ class RIAC(Teacher):
     """Robust Intelligent Adaptive Curiosity (defaults: TeachMyAgent benchmark)."""
 
     name = "riac"
+
+    @classmethod
+    def plot_history(cls, bk, low, high, steps):
+        """The leaf regions, replayed split by split."""
+        return histories.splits(bk, low, high)
 
     def __init__(
         self,

@@ -37,7 +37,8 @@ import torch
 from torch.distributions import MultivariateNormal, kl_divergence
 
 from acl3d import validation
-from acl3d.teachers.base import Teacher
+from acl3d.teachers import histories
+from acl3d.teachers.base import RunFacts, Teacher
 from acl3d.teachers.torch_utils import check_positive
 
 _CG_DEFAULTS = {
@@ -72,6 +73,16 @@ class SelfPaced(Teacher):
     name = "self-paced"
     needs = frozenset({"step_rewards", "initial_states", "value_estimator"})
     uses_initial_dist = True
+
+    @classmethod
+    def plot_history(cls, bk, low, high, steps):
+        """The Gaussian after each update (updates count environment steps)."""
+        return histories.gaussians(bk, steps)
+
+    @classmethod
+    def toy_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """A toy episode is one step: update every 250 episodes after the first 1000."""
+        return {"update_frequency": 250, "update_offset": 1000}
 
     def __init__(
         self,

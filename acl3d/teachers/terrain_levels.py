@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from acl3d.teachers.base import Teacher
+from acl3d.teachers.base import RunFacts, Teacher
 from acl3d.validation import count, fail, integer, real
 
 MAX_PENDING = 4096  # proposed tasks awaiting their outcome (older ones are forgotten)
@@ -32,6 +32,16 @@ class TerrainLevels(Teacher):
     """Per-robot difficulty levels promoted and demoted by how far each episode went."""
 
     name = "terrain-levels"
+
+    @classmethod
+    def toy_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """Start at the origin, promote on a mastered cube (the toy's success return), demote on
+        a locked one (return 0)."""
+        return {
+            "promote_return": facts.profile.success_return,
+            "demote_return": 0.005,
+            "max_init_level": 0,
+        }
 
     def __init__(
         self,

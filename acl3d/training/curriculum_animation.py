@@ -1,11 +1,11 @@
 """The curriculum of a run as an animation: sampled tasks over training, with the teacher's state.
 
 Each frame shows the training tasks of one window of episodes (from `episodes.csv`, coloured by
-return) over the teacher's state when the window began, rebuilt from the history the teacher
-keeps in its book-keeping (`teacher.json/.npz`): the fitted mixtures of ALP-GMM and Covar-GMM,
-RIAC's regions (each coloured by its ALP when it was split off), ADR's box and SPDL's Gaussian.
-Other teachers (and runs with shuffled dimensions, whose teacher works in another space) get
-the tasks only. Drawing reuses `acl3d.teachers.plots.render_frame`, as the toy GIFs do.
+return) over the teacher's state when the window began, rebuilt by the teacher class from the
+history it keeps in its book-keeping (`teacher.json/.npz`, `Teacher.plot_history`): e.g. the
+fitted mixtures of ALP-GMM and Covar-GMM, RIAC's regions, ADR's box and SPDL's Gaussian. Other
+teachers (and runs with shuffled dimensions, whose teacher works in another space) get the tasks
+only. Drawing reuses `acl3d.teachers.plots.render_frame`, as the toy GIFs do.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from acl3d.run_format.tables import read_csv
+from acl3d.teachers import registered, teacher_class
 from acl3d.teachers.plots import render_frame
 from acl3d.training.run_dir import RunDir
 from acl3d.video import open_sink
@@ -22,79 +23,15 @@ from acl3d.video import open_sink
 _EPISODE_COLUMNS = {"step", "worker", "return", "length", "success", "truncated"}
 
 
-def _gmm_states(bk: dict, dim: int, by_alp: bool) -> list[tuple[int, dict]]:
-    """The mixtures over [task, extra columns] cut to the task; ALP-GMM's colour is its ALP (the
-    last column, as it samples), the other mixtures' their weights."""
-    states = []
-    for e, m, c, w in zip(bk["episodes"], bk["means"], bk["covariances"], bk["weights"]):
-        m, c = np.asarray(m, dtype=np.float64), np.asarray(c, dtype=np.float64)
-        weights = np.maximum(m[:, -1], 0.0) if by_alp else np.asarray(w, dtype=np.float64)
-        states.append(
-            (
-                int(e),
-                {
-                    "kind": "gmm",
-                    "means": m[:, :dim],
-                    "covariances": c[:, :dim, :dim],
-                    "weights": weights,
-                    "label": "ALP" if by_alp else "Gaussian weight",
-                },
-            )
-        )
-    return states
-
-
-def _riac_states(bk: dict, low: np.ndarray, high: np.ndarray) -> list[tuple[int, dict]]:
-    """Replay RIAC's splits (node, dim, threshold, ALP left, ALP right) from the root box."""
-    boxes = [(low.copy(), high.copy(), 0.0)]
-    leaves = {0}
-    states = []
-    for episode, (node, dim, thr, alp_l, alp_r) in zip(bk["split_iterations"], bk["splits"]):
-        node, dim = int(node), int(dim)
-        box_low, box_high, _ = boxes[node]
-        left_high, right_low = box_high.copy(), box_low.copy()
-        left_high[dim] = right_low[dim] = float(thr)
-        boxes += [(box_low, left_high, float(alp_l)), (right_low, box_high, float(alp_r))]
-        leaves = (leaves - {node}) | {len(boxes) - 2, len(boxes) - 1}
-        states.append(
-            (int(episode), {"kind": "boxes", "boxes": [boxes[i] for i in sorted(leaves)]})
-        )
-    return states
-
-
-def _adr_states(bk: dict) -> list[tuple[int, dict]]:
-    return [
-        (int(e), {"kind": "box", "low": np.asarray(lo), "high": np.asarray(hi)})
-        for e, (lo, hi) in zip(bk["episodes"], bk["task_space"])
-    ]
-
-
-def _spdl_states(bk: dict, steps: np.ndarray) -> list[tuple[int, dict]]:
-    """SPDL counts environment steps: its updates are placed at the first episode after them."""
-    return [
-        (
-            int(np.searchsorted(steps, s, side="right")),
-            {"kind": "gaussian", "mean": np.asarray(m), "covariance": np.asarray(c)},
-        )
-        for s, m, c in zip(bk["steps"], bk["mean"], bk["covariance"])
-    ]
-
-
 def teacher_states(dump: dict, steps: np.ndarray) -> list[tuple[int, dict]]:
-    """[(episodes seen when the state was set, plot_state dict)] in time order, or []."""
-    bk = dump.get("teacher_bk") or {}
-    if dump.get("shuffled"):
+    """[(episodes seen when the state was set, plot_state dict)] in time order, or []: what the
+    dumped teacher declares it can rebuild (`Teacher.plot_history`). Only registered teachers
+    are looked up (a dump never names code to import)."""
+    name = dump.get("teacher")
+    if dump.get("shuffled") or name not in registered():
         return []
     low, high = np.asarray(dump["low"], float), np.asarray(dump["high"], float)
-    if bk.get("means") and bk.get("covariances"):
-        return _gmm_states(bk, len(low), dump.get("teacher") == "alp-gmm")
-    if bk.get("splits"):
-        return _riac_states(bk, low, high)
-    if bk.get("task_space"):
-        return _adr_states(bk)
-    if bk.get("mean") and bk.get("covariance"):
-        return _spdl_states(bk, steps)
-    return []
+    return teacher_class(name).plot_history(dump.get("teacher_bk") or {}, low, high, steps)
 
 
 def curriculum_frames(run_dir, frames: int = 40) -> tuple[list[dict], dict]:
