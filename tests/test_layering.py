@@ -21,6 +21,7 @@ TIERS: tuple[tuple[str, ...], ...] = (
     ("task_space", "run_format"),
     ("curriculum_profile",),
     ("terrain", "bodies", "teachers", "toy", "playback"),
+    ("sim",),
     ("envs",),
     ("acl3d",),
     ("vec",),
@@ -36,6 +37,8 @@ THIRD_PARTY_FROM: dict[str, str] = {
     "stable_baselines3": "vec",
     "torch": "teachers",
     "ray": "campaign",
+    "warp": "sim",
+    "mujoco_warp": "sim",
 }
 
 

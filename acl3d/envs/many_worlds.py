@@ -1,0 +1,186 @@
+"""Stump and Hexagon Tracks as N worlds of one simulation on MuJoCo Warp, tensors in and out.
+
+`ManyWorldTracks` implements `acl3d.envs.tensor_vector.TensorVectorEnv` (what a torch-native
+student trains on): one compiled model (from a `TrackEnv` of the same arguments), N worlds on
+`acl3d.sim.warp_backend.WarpSimulation` with per-world terrain and servo caps, the tracks' rules
+on torch (`TensorTrackRules`), episode sums in one `EpisodeStatistics` on the device, and a
+`CurriculumSync` that learns from finished episodes and hands out the next tasks.
+
+A step: servos (per-world force caps) -> `frame_skip` substeps (one CUDA graph) -> rules ->
+episode statistics; then, if any world finished, one batched reset of those worlds: their
+curriculum tasks, their terrain (generated on the CPU by the track's own generator, each world
+on its own RNG stream seeded seed + i as a single env, and uploaded in one copy), their bodies
+placed, and one `forward` of the simulation (a graph too).
+
+Differences from a single `TrackEnv` (docs/architecture.md): float32 physics on Warp; a reset
+world's first observation is taken right after its body is placed (the single env plays one
+idle step first); a diverged world (non-finite state) ends its episode flagged `unstable` with
+reward 0.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import torch
+from gymnasium.utils import seeding
+
+from acl3d import validation
+from acl3d.envs.arena import CONTROL_DT
+from acl3d.envs.episode_statistics import CurriculumSync, EpisodeStatistics
+from acl3d.envs.tensor_track_rules import TensorTrackRules
+from acl3d.envs.track_env import TrackEnv
+from acl3d.sim.warp_backend import WarpSimulation
+from acl3d.sim.worlds import MAX_WORLDS, WorldFields
+from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT
+
+TRACK_WORLD_FIELDS = WorldFields(("terrain",), ("terrain",), force_caps=True)
+
+
+class ManyWorldTracks:
+    """N worlds of Stump or Hexagon Tracks on MuJoCo Warp (see the module docstring).
+
+    Args:
+        num_envs: number of worlds, in [1, 2**20].
+        device: "cuda" (a GPU) or "cpu" (Warp's CPU device: slow, for tests).
+        curriculum: where tasks come from (`CurriculumSync`); None: every world plays the task
+            space's default task.
+        max_episode_steps: the time limit (2000, as the registered envs).
+        **env_kwargs: the `TrackEnv` arguments (track, body, planar, task_parameters, ...).
+    """
+
+    def __init__(
+        self,
+        num_envs: int,
+        device="cuda",
+        curriculum: CurriculumSync | None = None,
+        max_episode_steps: int = 2000,
+        **env_kwargs,
+    ):
+        self.num_envs = validation.integer("num_envs", num_envs, 1, MAX_WORLDS)
+        self.max_episode_steps = validation.integer(
+            "max_episode_steps", max_episode_steps, 1, 10**9
+        )
+        self.device = torch.device(device)
+        self.template = env = TrackEnv(**env_kwargs)
+        self.task_space, self.curriculum_profile = env.task_space, env.curriculum_profile
+        self.curriculum = curriculum
+        self.observation_size, self.action_size = env.rules.obs_size, env.body.action_size
+        self.sim = WarpSimulation(
+            env.model, self.num_envs, env.frame_skip, TRACK_WORLD_FIELDS, self.device
+        )
+        self.rules = TensorTrackRules(env.rules, self.device, self.sim.dtype)
+        n, f = self.num_envs, {"device": self.device, "dtype": self.sim.dtype}
+        self.heights = self.rules.lidar.empty_heights(n, **f)
+        self.prev_shaping = torch.zeros(n, **f)
+        self.elapsed = torch.zeros(n, dtype=torch.long, device=self.device)
+        self.stats = EpisodeStatistics(n, len(self.task_space.names), device=self.device)
+        self.tasks = np.tile(self.task_space.to_vector({}), (n, 1))
+        self._rngs = [seeding.np_random(None)[0] for _ in range(n)]
+        self._success_return = env.curriculum_profile.success_return
+        self._home_qpos, self._push_scale = self._home_state()
+        self.obs = torch.zeros((n, self.observation_size), **f)
+
+    def _home_state(self) -> tuple[np.ndarray, float]:
+        """The placed body's qpos and the push's velocity per unit of force (`Arena.place_body`)."""
+        env = self.template
+        data = mujoco.MjData(env.model)
+        env.arena.bound.place(data, env.arena.start_x, env.body.spawn_height)
+        scale = CONTROL_DT / env.arena.bound.total_mass if env.body.initial_push else 0.0
+        return data.qpos.copy(), scale
+
+    # ------------------------------------------------------------------ resets
+    def reset(self, seed: int | None = None) -> torch.Tensor:
+        """Every world starts an episode; world i's terrain and push come from seed + i."""
+        n = self.num_envs
+        seed = validation.seed(seed)
+        self._rngs = [seeding.np_random(None if seed is None else seed + i)[0] for i in range(n)]
+        ids = np.arange(n)
+        tasks = self._next_tasks(self.stats.pop(), ids)
+        self.obs = self._reset_worlds(ids, tasks, self.obs)
+        return self.obs
+
+    def _next_tasks(self, finished, ids: np.ndarray) -> np.ndarray:
+        if self.curriculum is None:
+            return self.tasks[ids]
+        tasks = np.asarray(self.curriculum.sync(finished, ids), dtype=np.float64)
+        for task in tasks:  # a teacher's task the generator cannot build is the teacher's bug
+            self.template.composition.check_buildable(self.task_space.to_dict(task))
+        return tasks.reshape(len(ids), -1)
+
+    def _reset_worlds(self, ids: np.ndarray, tasks: np.ndarray, obs: torch.Tensor):
+        """New episodes on worlds `ids` (host indices) with `tasks`; returns obs with their rows
+        replaced by their first observations."""
+        env, n = self.template, self.num_envs
+        self.tasks[ids] = tasks
+        lines = np.empty((len(ids), env.arena.grid.ncol))
+        push = np.empty(len(ids))
+        for row, (i, task) in enumerate(zip(ids, tasks)):
+            rng = self._rngs[i]
+            lines[row] = env.generator.heights(
+                self.task_space.to_dict(task), rng, env.arena.start_pad
+            )
+            push[row] = rng.uniform(-5.0, 5.0)
+        index = torch.as_tensor(ids, device=self.device)
+        lines_t = torch.as_tensor(lines, device=self.device, dtype=self.sim.dtype)
+        self.heights[index, : lines.shape[1]] = lines_t
+        terrain = self.sim.terrain("terrain")
+        terrain[index] = (lines_t / MAX_TERRAIN_HEIGHT).clamp(0.0, 1.0)[:, None, :]
+        mask = torch.zeros(n, dtype=torch.bool, device=self.device)
+        mask[index] = True
+        qpos = torch.as_tensor(self._home_qpos, device=self.device).expand(n, -1)
+        qvel = torch.zeros((n, env.model.nv), device=self.device, dtype=self.sim.dtype)
+        qvel[index, env.arena.bound.root_dof] = torch.as_tensor(
+            push * self._push_scale, device=self.device, dtype=self.sim.dtype
+        )
+        self.sim.reset_worlds(mask, qpos, qvel)
+        x, first = self.rules.observe(self.sim, self.heights)
+        shaping = self.rules.potential(x, first)
+        self.prev_shaping = torch.where(mask, shaping, self.prev_shaping)
+        self.elapsed.masked_fill_(mask, 0)
+        self.stats.begin(index, torch.as_tensor(tasks, device=self.device))
+        return torch.where(mask[:, None], first, obs)
+
+    # ------------------------------------------------------------------ steps
+    def step(self, actions: torch.Tensor):
+        """(obs, rewards, terminated, truncated, infos) with same-step autoreset; infos:
+        final_obs, success, unstable, episode_return and episode_length (rows of finished
+        worlds)."""
+        if actions.shape != (self.num_envs, self.action_size):
+            raise ValueError(
+                f"actions: expected shape {(self.num_envs, self.action_size)}, "
+                f"got {tuple(actions.shape)}"
+            )
+        a = actions.to(self.device, self.sim.dtype)
+        self.rules.servo(a, self.sim)
+        self.sim.step()
+        obs, reward, terminated, shaping = self.rules.outcome(
+            self.sim, a, self.heights, self.prev_shaping
+        )
+        self.prev_shaping = shaping
+        unstable = ~torch.isfinite(obs).all(dim=1) | ~torch.isfinite(reward)
+        obs = obs.masked_fill(unstable[:, None], 0.0)
+        reward = reward.masked_fill(unstable, 0.0)
+        terminated |= unstable
+        self.elapsed += 1
+        truncated = (self.elapsed >= self.max_episode_steps) & ~terminated
+        returns = self.stats.returns + reward.double()
+        success = returns > self._success_return
+        infos = {
+            "final_obs": obs,
+            "success": success,
+            "unstable": unstable,
+            "episode_return": returns,
+            "episode_length": self.elapsed.clone(),
+        }
+        self.stats.step(reward, terminated, truncated, success)
+        done = terminated | truncated
+        ids = done.nonzero()[:, 0].cpu().numpy()  # the step's one host sync
+        if len(ids):
+            tasks = self._next_tasks(self.stats.pop(), ids)
+            obs = self._reset_worlds(ids, tasks, obs)
+        self.obs = obs
+        return obs, reward, terminated, truncated, infos
+
+    def close(self) -> None:
+        self.template.close()

@@ -1,0 +1,183 @@
+"""MuJoCo Warp: N worlds of one model on a CUDA GPU (or Warp's CPU device, for tests).
+
+The model goes to the device once (`mujoco_warp.put_model`); the fields `WorldFields` declares get
+a leading world dimension there:
+
+* force caps: `actuator_forcerange` batched (N, nu, 2), written by the rules before each step;
+* terrain: each declared heightfield asset is copied once per world at the end of
+  `hfield_data` (same rows, columns and size: only the address differs), and the batched
+  `geom_dataid` (N, ngeom) routes world i's terrain geom to its own copy. This is the route MuJoCo
+  Warp's collision reads per world; the alternative, one large tiled heightfield with a tile per
+  world, would move every world's body to its own tile and change what the rules read (x), so it
+  was not taken (docs/architecture.md compares the two).
+
+Every array is read and written through zero-copy torch views (`warp.to_torch`). On CUDA the
+`nstep` substeps of a step and the `forward` after resets are each captured once as a CUDA graph
+and replayed; Warp's stream and torch's current stream are ordered with events, so torch writes
+(controls, caps, reset states) are seen by the graph and its results by torch, with no host sync.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import mujoco
+import numpy as np
+import torch
+
+from acl3d.sim.worlds import MAX_WORLDS, WorldFields
+
+GPU_EXTRA = 'pip install "acl3d[gpu]"'
+_FIELDS = ("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "sensordata", "qacc_warmstart", "time")
+
+
+def import_warp():
+    """(warp, mujoco_warp), or ImportError naming the extra that installs them."""
+    try:
+        warp = importlib.import_module("warp")
+        mjw = importlib.import_module("mujoco_warp")
+    except ImportError as error:
+        raise ImportError(
+            f"the MuJoCo Warp backend needs warp-lang and mujoco-warp: {GPU_EXTRA} ({error})"
+        ) from error
+    warp.config.quiet = True
+    return warp, mjw
+
+
+def warp_device_name(device: torch.device) -> str:
+    """Warp's name of a torch device ("cuda:0", "cpu")."""
+    if device.type == "cuda":
+        return f"cuda:{device.index if device.index is not None else torch.cuda.current_device()}"
+    if device.type == "cpu":
+        return "cpu"
+    raise ValueError(f"device={device}; valid: a CUDA device or cpu")
+
+
+class WarpSimulation:
+    """N worlds of `model` on MuJoCo Warp (see the module docstring).
+
+    Args:
+        model: the family's compiled model (its heightfields hold world 0's initial terrain).
+        nworld: number of worlds, in [1, 2**20].
+        nstep: substeps per `step()` (the env's frame_skip).
+        fields: the per-world quantities.
+        device: a torch device: "cuda" (or "cuda:k") or "cpu" (Warp's CPU device).
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, nworld: int, nstep: int, fields: WorldFields, device="cuda"
+    ):
+        if not 1 <= nworld <= MAX_WORLDS:
+            raise ValueError(f"nworld={nworld}; valid: [1, {MAX_WORLDS}]")
+        self._wp, self._mjw = import_warp()
+        wp, mjw = self._wp, self._mjw
+        self.device = torch.device(device)
+        self.dtype = torch.float32
+        self.nworld, self.nstep, self.fields = nworld, nstep, fields
+        self._wp_device = wp.get_device(warp_device_name(self.device))
+        batch = {}
+        if fields.force_caps:
+            batch["actuator_forcerange"] = nworld
+        if fields.terrain_hfields:
+            batch["geom_dataid"] = nworld
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        with wp.ScopedDevice(self._wp_device):
+            self.m = mjw.put_model(model, batch_sizes=batch)
+            self.d = mjw.put_data(model, data, nworld=nworld)
+            self._terrain = self._route_terrain(model, fields)
+        self._views = {name: wp.to_torch(getattr(self.d, name)) for name in _FIELDS}
+        self._caps = wp.to_torch(self.m.actuator_forcerange) if fields.force_caps else None
+        self._graphs: dict[str, object] = {}
+
+    # ------------------------------------------------------------------ per-world terrain
+    def _route_terrain(self, model: mujoco.MjModel, fields: WorldFields) -> dict[str, torch.Tensor]:
+        """Give each world its own copy of every declared heightfield (see the module docstring)."""
+        wp, m, n = self._wp, self.m, self.nworld
+        if not fields.terrain_hfields:
+            return {}
+        sizes = [model.hfield_size.copy()]
+        nrows, ncols = [model.hfield_nrow.copy()], [model.hfield_ncol.copy()]
+        adrs, data = [model.hfield_adr.copy()], [model.hfield_data.astype(np.float32)]
+        dataid = np.tile(model.geom_dataid, (n, 1)).astype(np.int32)
+        next_id, next_adr = model.nhfield, model.nhfielddata
+        spans = {}
+        for name, geom in zip(fields.terrain_hfields, fields.terrain_geoms):
+            h = model.hfield(name).id
+            nrow, ncol = int(model.hfield_nrow[h]), int(model.hfield_ncol[h])
+            size = nrow * ncol
+            sizes.append(np.tile(model.hfield_size[h], (n, 1)))
+            nrows.append(np.full(n, nrow))
+            ncols.append(np.full(n, ncol))
+            adrs.append(next_adr + size * np.arange(n))
+            own = model.hfield_data[model.hfield_adr[h] : model.hfield_adr[h] + size]
+            data.append(np.tile(own.astype(np.float32), n))
+            dataid[:, model.geom(geom).id] = next_id + np.arange(n)
+            spans[name] = (next_adr, nrow, ncol)
+            next_id, next_adr = next_id + n, next_adr + n * size
+        m.hfield_size = wp.array(np.concatenate(sizes).astype(np.float32), dtype=wp.vec4)
+        m.hfield_nrow = wp.array(np.concatenate(nrows).astype(np.int32), dtype=int)
+        m.hfield_ncol = wp.array(np.concatenate(ncols).astype(np.int32), dtype=int)
+        m.hfield_adr = wp.array(np.concatenate(adrs).astype(np.int32), dtype=int)
+        m.hfield_data = wp.array(np.concatenate(data), dtype=float)
+        m.geom_dataid = wp.array(dataid, dtype=int)
+        m.nhfield, m.nhfielddata = next_id, next_adr
+        flat = wp.to_torch(m.hfield_data)
+        return {
+            name: flat[adr : adr + n * nrow * ncol].view(n, nrow, ncol)
+            for name, (adr, nrow, ncol) in spans.items()
+        }
+
+    # ------------------------------------------------------------------ the Simulation protocol
+    def field(self, name: str) -> torch.Tensor:
+        """Live (N, ...) view: qpos, qvel, ctrl, xpos (N, nbody, 3), xmat (N, nbody, 3, 3),
+        cvel (N, nbody, 6), sensordata, qacc_warmstart, time (N,)."""
+        return self._views[name]
+
+    def force_caps(self) -> torch.Tensor:
+        if self._caps is None:
+            raise ValueError("force caps are not per-world fields of this simulation")
+        return self._caps
+
+    def terrain(self, hfield: str) -> torch.Tensor:
+        return self._terrain[hfield]
+
+    def reset_worlds(self, worlds: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
+        v = self._views
+        mask = worlds[:, None]
+        v["qpos"].copy_(torch.where(mask, qpos.to(self.dtype), v["qpos"]))
+        v["qvel"].copy_(torch.where(mask, qvel.to(self.dtype), v["qvel"]))
+        v["qacc_warmstart"].masked_fill_(mask, 0.0)
+        v["ctrl"].masked_fill_(mask, 0.0)
+        v["time"].masked_fill_(worlds, 0.0)
+        self._run("forward", lambda: self._mjw.forward(self.m, self.d))
+
+    def step(self) -> None:
+        def substeps():
+            for _ in range(self.nstep):
+                self._mjw.step(self.m, self.d)
+
+        self._run("step", substeps)
+
+    # ------------------------------------------------------------------ launches
+    def _run(self, name: str, launch) -> None:
+        """Run `launch` (Warp kernels) in order with torch's work on this device: eagerly on
+        the CPU, as a CUDA graph captured at its first call on a GPU."""
+        wp = self._wp
+        if self.device.type != "cuda":
+            with wp.ScopedDevice(self._wp_device):
+                launch()
+            return
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device))
+        stream = wp.get_stream(self._wp_device)
+        stream.wait_stream(torch_stream)
+        graph = self._graphs.get(name)
+        if graph is None:
+            with wp.ScopedDevice(self._wp_device):
+                launch()  # compile (or load) the kernels before capturing them
+                with wp.ScopedCapture(self._wp_device) as capture:
+                    launch()
+            graph = self._graphs[name] = capture.graph
+        else:
+            wp.capture_launch(graph, stream=stream)
+        torch_stream.wait_stream(stream)

@@ -1,0 +1,73 @@
+"""What differs between the worlds of one simulation, and the interface every backend implements.
+
+mjlab's pattern: one model, N worlds, and the fields a world may change declared up front, so a
+backend knows which model arrays it must give a leading world dimension (MuJoCo Warp) or which
+quantities each world's model copy owns (MuJoCo's batch on the CPU).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import torch
+
+MAX_WORLDS = 1 << 20
+
+
+@dataclass(frozen=True)
+class WorldFields:
+    """The per-world quantities of a family's model.
+
+    terrain_hfields: names of the heightfield assets each world rewrites at its resets (its own
+        terrain). On MuJoCo Warp each world gets its own copy of the asset, routed to it through
+        the batched `geom_dataid`; `terrain_geoms` are the geoms that use them, in order.
+    force_caps: every world caps its actuators' forces on its own (`actuator_forcerange`: the
+        velocity servos' torque cap is |a| * torque, written each step).
+    """
+
+    terrain_hfields: tuple[str, ...] = ()
+    terrain_geoms: tuple[str, ...] = ()
+    force_caps: bool = False
+
+    def __post_init__(self):
+        if len(self.terrain_hfields) != len(self.terrain_geoms):
+            raise ValueError(
+                f"terrain_hfields={self.terrain_hfields} and terrain_geoms={self.terrain_geoms}: "
+                "one geom per heightfield"
+            )
+
+
+class Simulation(Protocol):
+    """N worlds of one model stepped together; state read and written as live torch tensors.
+
+    Tensors live on `device`; `field(name)` views are live (a step updates them in place) and
+    keep their identity across steps, so callers may hold them. As after `mj_step`, derived
+    fields (xpos, xmat, cvel, sensordata) describe the state the last substep started from.
+    """
+
+    nworld: int
+    device: torch.device
+    dtype: torch.dtype
+
+    def field(self, name: str) -> torch.Tensor:
+        """Live (N, ...) tensor of a Data field: qpos, qvel, ctrl, xpos, xmat, cvel, sensordata."""
+        ...
+
+    def force_caps(self) -> torch.Tensor:
+        """Live (N, nu, 2) per-world actuator force ranges (declared with `force_caps`)."""
+        ...
+
+    def terrain(self, hfield: str) -> torch.Tensor:
+        """Live (N, nrow, ncol) per-world elevation data (0..1) of a declared terrain heightfield."""
+        ...
+
+    def reset_worlds(self, worlds: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
+        """Clear the worlds where the (N,) bool mask `worlds` is set, put them in state
+        (qpos, qvel) (rows of (N, nq) / (N, nv) tensors; other rows ignored) and recompute
+        their derived fields; other worlds are untouched."""
+        ...
+
+    def step(self) -> None:
+        """`nstep` substeps of every world."""
+        ...

@@ -1,0 +1,109 @@
+"""The many-world simulation on MuJoCo Warp, run on Warp's CPU device (no GPU needed).
+
+Warp compiles its CPU kernels once per machine (about a minute; cached in ~/.cache/warp), so the
+checks share one small simulation and stay few: the torch rules equal the numpy rules on the same
+physics, Warp steps as CPU MuJoCo does over the first steps, and a reset of some worlds leaves the
+others untouched. All tests of this module run on one test worker (`xdist_group`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mujoco_warp", reason="the [gpu] extra: pip install 'acl3d[gpu]'")
+
+from acl3d.envs.many_worlds import ManyWorldTracks  # noqa: E402
+from acl3d.envs.track_env import TrackEnv  # noqa: E402
+
+pytestmark = pytest.mark.xdist_group("warp")
+FLAT = {"stump_height": 0.0, "obstacle_spacing": 6.0}  # stumps of ~0 m: contacts stay smooth
+
+
+class WorldsAsNumpy:
+    """The numpy rules' physics interface over the Warp worlds' fields (float64 copies)."""
+
+    def __init__(self, sim):
+        fields = ("qpos", "qvel", "xpos", "xmat", "cvel", "sensordata")
+        self._fields = {name: sim.field(name).double().numpy() for name in fields}
+        n = self._fields["xmat"].shape[0]
+        self._fields["xmat"] = self._fields["xmat"].reshape(n, -1, 9)
+        self.controls = sim.field("ctrl").double().numpy()
+
+    def field(self, name):
+        return self._fields[name]
+
+
+@pytest.fixture(scope="module")
+def worlds():
+    env = ManyWorldTracks(2, device="cpu", body="classic_bipedal")
+    env.tasks[:] = env.task_space.to_vector(FLAT)
+    env.reset(seed=1)
+    return env
+
+
+def _actions(env, seed):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand((env.num_envs, env.action_size), generator=g) * 2 - 1
+
+
+def test_torch_rules_equal_numpy_rules_on_the_same_physics(worlds):
+    for k in range(3):
+        worlds.step(_actions(worlds, k))
+    rules = worlds.template.rules
+    rows = rules.new_rows(worlds.num_envs)
+    rows.heights[:, : worlds.heights.shape[1]] = worlds.heights.double().numpy()
+    x_np, obs_np = rules.observe(WorldsAsNumpy(worlds.sim), rows)
+    x_t, obs_t = worlds.rules.observe(worlds.sim, worlds.heights)
+    np.testing.assert_allclose(x_t.numpy(), x_np, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(obs_t.numpy(), obs_np, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(
+        worlds.rules.potential(x_t, obs_t).numpy(), rules.potential(None, x_np, obs_np), atol=1e-4
+    )
+
+
+def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):
+    cpu = TrackEnv(body="classic_bipedal")
+    obs_cpu, _ = cpu.reset(seed=5, options={"task": FLAT})
+    # world 1 takes the CPU env's terrain and state
+    sim, n = worlds.sim, worlds.num_envs
+    heights = torch.as_tensor(cpu.arena.heights, dtype=torch.float32)
+    worlds.heights[1, : len(heights)] = heights
+    sim.terrain("terrain")[1] = torch.as_tensor(
+        cpu.model.hfield_data.reshape(2, -1), dtype=torch.float32
+    )
+    mask = torch.tensor([False, True])
+    qpos = torch.as_tensor(cpu.data.qpos, dtype=torch.float32).expand(n, -1)
+    qvel = torch.as_tensor(cpu.data.qvel, dtype=torch.float32).expand(n, -1)
+    sim.reset_worlds(mask, qpos, qvel)
+    worlds.prev_shaping[1] = float(cpu.rows.prev_shaping[0])
+    worlds.elapsed[1] = 0
+    # float32 against float64: ~1e-6 until a foot's contact starts (the 6th step of this seed,
+    # where the two part by ~3e-3, as contact onsets do; docs/architecture.md)
+    for k in range(5):
+        a = _actions(worlds, 100 + k)
+        obs_cpu, reward_cpu, terminated, _, _ = cpu.step(a[1].numpy())
+        obs, reward, terminated_w, _, infos = worlds.step(a)
+        assert not terminated and not terminated_w[1]
+        np.testing.assert_allclose(sim.field("qpos")[1].numpy(), cpu.data.qpos, atol=1e-5)
+        np.testing.assert_allclose(obs[1].numpy(), obs_cpu, atol=1e-4)
+        assert abs(float(reward[1]) - reward_cpu) < 1e-4
+
+
+def test_resetting_some_worlds_leaves_the_others_untouched(worlds):
+    worlds.step(_actions(worlds, 7))
+    sim = worlds.sim
+    before = {name: sim.field(name)[1].clone() for name in ("qpos", "qvel")}
+    terrain_before = sim.terrain("terrain")[1].clone()
+    heights_before = worlds.heights[1].clone()
+    obs_before = worlds.obs.clone()
+    task = worlds.task_space.to_vector({"stump_height": 2.0, "obstacle_spacing": 1.0})
+    obs = worlds._reset_worlds(np.array([0]), task[None], worlds.obs)
+    for name, value in before.items():
+        assert torch.equal(sim.field(name)[1], value), name
+    assert torch.equal(sim.terrain("terrain")[1], terrain_before)
+    assert torch.equal(worlds.heights[1], heights_before)
+    assert torch.equal(obs[1], obs_before[1])
+    assert not torch.equal(sim.terrain("terrain")[0], terrain_before)  # world 0's new stumps
+    assert worlds.stats.returns[0] == 0 and worlds.elapsed[0] == 0
