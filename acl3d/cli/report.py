@@ -26,6 +26,7 @@ def check_inputs(run_dir, out, video: bool) -> None:
     from acl3d.run_format.checkpoints import check_zip
     from acl3d.training.checkpoint import MODEL_MEMBERS
     from acl3d.training.run_dir import RunDir
+    from acl3d.training.torch_student.policy_file import POLICY_MEMBERS, is_policy_file
 
     run = RunDir(run_dir)
     run.read_config()
@@ -37,7 +38,8 @@ def check_inputs(run_dir, out, video: bool) -> None:
                 f"run directory {str(run.path)!r} has no teacher dump with test tasks yet "
                 "(use --no-video for the plots)"
             )
-        check_zip(run.best_model(), MODEL_MEMBERS)
+        model = run.best_model()
+        check_zip(model, POLICY_MEMBERS if is_policy_file(model) else MODEL_MEMBERS)
 
 
 def run(args) -> int:

@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from acl3d.extras import optional_dependency
+from acl3d.training.torch_student.policy_file import POLICY_MEMBERS
 
 with optional_dependency("the rsl-ppo student"):
     from rsl_rl.algorithms import PPO
@@ -26,7 +27,6 @@ with optional_dependency("the rsl-ppo student"):
     from tensordict import TensorDict
 
 NAME = "rsl-ppo"
-POLICY_MEMBERS = ("acl3d_policy.json", "actor.pt")
 _GROUPS = {"actor": ["policy"], "critic": ["policy"]}
 
 
@@ -172,15 +172,6 @@ class RslPPO:
         with zipfile.ZipFile(path, "w") as z:
             z.writestr(POLICY_MEMBERS[0], json.dumps(self.spec))
             z.writestr(POLICY_MEMBERS[1], buffer.getvalue())
-
-
-def is_policy_file(path) -> bool:
-    """Whether `path` is a policy saved by `RslPPO.save_policy`."""
-    try:
-        with zipfile.ZipFile(path) as z:
-            return POLICY_MEMBERS[0] in z.namelist()
-    except (OSError, zipfile.BadZipFile):
-        return False
 
 
 class SavedPolicy:
