@@ -307,3 +307,128 @@ def test_evaluate_and_report_check_their_inputs_first(copy, tmp_path, capsys):
     assert main(["report", str(run), "--no-video"]) == 2
     one_line_error(capsys, "teacher.json/.npz cannot be read")
     assert not (run / "report").exists()
+
+
+# ---------------------------------------------------------------------- the run format
+def fake_run(root: Path, name: str, evals: str | None, teacher: str = "random") -> Path:
+    """A run directory as analysis reads it: config.yaml, status.json, evals.csv."""
+    run = root / name
+    run.mkdir(parents=True)
+    (run / "config.yaml").write_text(yaml.safe_dump({"config": {"teacher": teacher, "seed": 0}}))
+    (run / "status.json").write_text(json.dumps({"status": "finished"}))
+    if evals is not None:
+        header = "step,episodes,mastered_pct,mean_return,std_return,mean_length,n_tasks,wall_time_s"
+        (run / "evals.csv").write_text(f"{header}\n2048,40,0,-5.0,1,50,4,1.0\n{evals}")
+    return run
+
+
+def test_analysis_skips_runs_with_torn_or_missing_evaluations_and_names_them(tmp_path, capsys):
+    from acl3d.analysis.runs import load_runs
+
+    fake_run(tmp_path, "good", "4096,82,25,-3.0,1,50,4,2.0\n")
+    torn = {
+        "short": "4096,82\n",
+        "value": "4096,82,0,-,1,50,4,2.0\n",
+        "cut": "4096,82,0,-3.0\n",
+        "end": "4096,82,0,-\n",
+    }
+    for name, row in torn.items():
+        fake_run(tmp_path, name, row)
+    fake_run(tmp_path, "none", None)
+    runs = load_runs(tmp_path)
+    assert [r.name for r in runs] == ["good"] and list(runs[0].metrics["mastered_pct"]) == [0, 25]
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 5 and "Traceback" not in "".join(err)
+    for name in torn:
+        line = next(e for e in err if f"skipping run {name}:" in e)
+        assert str(tmp_path / name / "evals.csv") in line and "line 3 is torn" in line
+    assert any(f"skipping run none: {tmp_path / 'none' / 'evals.csv'} is missing" in e for e in err)
+
+
+@pytest.mark.parametrize("latest", ["", "step_000000000128"])
+def test_latest_empty_or_naming_a_pruned_step_resumes_from_the_newest_checkpoint(
+    latest, finished, copy, capsys
+):
+    run = copy()
+    (run / "final_model.zip").unlink()
+    RunDir(run).set_status("crashed")
+    (run / "checkpoints" / "LATEST").write_text(latest)
+    assert main(["train", "--resume", str(run)]) == 0
+    assert "LATEST " in capsys.readouterr().err
+    assert (run / "checkpoints" / "LATEST").read_text() == LAST
+    assert_same_training(finished, run)
+
+
+def test_an_edited_checkpoint_file_fails_its_hash_and_resume_falls_back(finished, copy, capsys):
+    run = copy()
+    rng = run / "checkpoints" / LAST / "rng.json"
+    text = rng.read_text()
+    edited = text.replace('"pos": ', '"pos": 3', 1)
+    assert edited != text
+    rng.write_text(edited)
+    (run / "final_model.zip").unlink()
+    RunDir(run).set_status("crashed")
+    config = TrainConfig.from_dict(RunDir(run).read_config())
+    with pytest.raises(DamagedCheckpoint, match="rng.json differs from the checkpoint's manifest"):
+        verify_checkpoint(run / "checkpoints" / LAST, config)
+    assert main(["train", "--resume", str(run)]) == 0
+    assert f"skipping damaged checkpoint {LAST}" in capsys.readouterr().err
+    assert_same_training(finished, run)
+
+    run = copy()
+    (run / "checkpoints" / FIRST / "manifest.json").unlink()
+    with pytest.raises(DamagedCheckpoint, match="manifest.json is missing"):
+        verify_checkpoint(run / "checkpoints" / FIRST, config)
+
+
+def test_evaluate_on_a_crashed_run_falls_back_past_a_truncated_model(copy, capsys):
+    run = copy()
+    (run / "final_model.zip").unlink()
+    RunDir(run).set_status("crashed")
+    truncate(run / "checkpoints" / LAST / "model.zip")
+    assert main(["evaluate", str(run), "--nb-test-episodes", "2"]) == 0
+    out, err = capsys.readouterr()
+    assert f"skipping damaged checkpoint {LAST}" in err and "model.zip" in err
+    assert f"evaluating {run / 'checkpoints' / FIRST / 'model.zip'} (step 256)" in out
+
+
+def test_running_with_a_dead_process_reads_as_crashed(copy, tmp_path):
+    from acl3d.analysis.runs import load_runs
+    from acl3d.campaign.run_state import read_state
+
+    run = copy()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    (run / "status.json").write_text(json.dumps({"status": "running", "pid": gone.pid}))
+    assert RunDir(run).status() == "crashed"
+    state = read_state(run, 512)
+    assert state.status == "crashed" and f"process {gone.pid} ended" in state.error
+    assert load_runs(run.parent)[0].status == "crashed"
+    RunDir(run).set_status("running")  # this process, alive
+    assert RunDir(run).status() == "running"
+
+
+def test_a_signal_during_a_status_write_is_held_until_the_write_is_whole(copy, monkeypatch):
+    run = copy()
+    replace = atomic_files.atomic_replace
+
+    def interrupted(tmp, path):
+        os.kill(os.getpid(), signal.SIGINT)  # a campaign's second Ctrl-C, mid-write
+        replace(tmp, path)
+
+    monkeypatch.setattr(atomic_files, "atomic_replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        RunDir(run).set_status("interrupted", latest_checkpoint=LAST)
+    assert json.loads((run / "status.json").read_text())["status"] == "interrupted"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_full_disk_at_start_leaves_no_directory(tmp_path, capsys, monkeypatch):
+    def full(tmp, path):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(atomic_files, "atomic_replace", full)
+    out = tmp_path / "new" / "run"
+    assert main(["train", *TINY, "--out", str(out)]) == 1
+    one_line_error(capsys, "no space left on device", "nothing was written")
+    assert not (tmp_path / "new").exists()
