@@ -11,10 +11,12 @@ a leading world dimension there:
   world, would move every world's body to its own tile and change what the rules read (x), so it
   was not taken (docs/architecture.md compares the two).
 
-Every array is read and written through zero-copy torch views (`warp.to_torch`). On CUDA the
-`nstep` substeps of a step and the `forward` after resets are each captured once as a CUDA graph
-and replayed; Warp's stream and torch's current stream are ordered with events, so torch writes
-(controls, caps, reset states) are seen by the graph and its results by torch, with no host sync.
+Every array is read and written through zero-copy torch views (`warp.to_torch`). The `nstep`
+substeps of a step and the `forward` after resets are each captured once as a graph and replayed
+(a CUDA graph on a GPU; on Warp's CPU device a recorded launch list, 6.6x faster than launching
+each kernel from Python). On a GPU, Warp's stream and torch's current stream are ordered with
+events, so torch writes (controls, caps, reset states) are seen by the graph and its results by
+torch, with no host sync.
 """
 
 from __future__ import annotations
@@ -161,23 +163,22 @@ class WarpSimulation:
 
     # ------------------------------------------------------------------ launches
     def _run(self, name: str, launch) -> None:
-        """Run `launch` (Warp kernels) in order with torch's work on this device: eagerly on
-        the CPU, as a CUDA graph captured at its first call on a GPU."""
+        """Run `launch` (Warp kernels) as a graph captured at its first call (CUDA graphs on a
+        GPU, Warp's replayed launch lists on the CPU), in order with torch's work on the GPU."""
         wp = self._wp
-        if self.device.type != "cuda":
+        cuda = self.device.type == "cuda"
+        if cuda:
+            torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device))
+            stream = wp.get_stream(self._wp_device)
+            stream.wait_stream(torch_stream)
+        graph = self._graphs.get(name)
+        if graph is None:  # the first call runs eagerly (compiling the kernels), then records
             with wp.ScopedDevice(self._wp_device):
                 launch()
-            return
-        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device))
-        stream = wp.get_stream(self._wp_device)
-        stream.wait_stream(torch_stream)
-        graph = self._graphs.get(name)
-        if graph is None:
-            with wp.ScopedDevice(self._wp_device):
-                launch()  # compile (or load) the kernels before capturing them
                 with wp.ScopedCapture(self._wp_device) as capture:
                     launch()
-            graph = self._graphs[name] = capture.graph
+            self._graphs[name] = capture.graph
         else:
-            wp.capture_launch(graph, stream=stream)
-        torch_stream.wait_stream(stream)
+            wp.capture_launch(graph, stream=stream if cuda else None)
+        if cuda:
+            torch_stream.wait_stream(stream)
