@@ -45,14 +45,14 @@ def test_short_names_and_bad_names():
         make(body="no_such_body")
 
 
-def test_task_from_reset_options_persists_and_set_environment_alias():
+def test_task_from_reset_options_persists_and_partial_dicts_use_defaults():
     env = make().unwrapped
     env.reset(seed=0, options={"task": {"stump_height": 2.5, "obstacle_spacing": 1.0}})
     first = env.arena.heights.copy()
     env.reset(seed=0)
     assert env.get_task() == {"stump_height": 2.5, "obstacle_spacing": 1.0}
     assert np.array_equal(env.arena.heights, first)
-    env.set_environment(stump_height=0.5)  # TeachMyAgent's name; partial dicts use defaults
+    env.set_task({"stump_height": 0.5})  # a partial dict: the other parameters at their defaults
     env.reset(seed=0)
     assert env.get_task() == {"stump_height": 0.5, "obstacle_spacing": 8.0}
     env.set_task(np.array([1.0, 2.0]))

@@ -34,9 +34,8 @@ _STATE_KEYS = (  # get_state()'s own keys (the RNG, physics and terrain parts ch
     "episode_return",
     "instability_warnings",
     "rng_seed",
-    # the rules' running numbers, under their original names: earlier checkpoints still resume
-    "task/prev_shaping",
-    "task/critical_contact",
+    "rules/prev_shaping",  # the rules' running numbers
+    "rules/critical_contact",
 )
 
 
@@ -181,10 +180,6 @@ class TrackEnv(gym.Env):
         self.composition.check_buildable(self.task_space.to_dict(vector))
         return vector
 
-    def set_environment(self, **params) -> None:
-        """TeachMyAgent's name for `set_task(params)`."""
-        self.set_task(params)
-
     def get_task(self) -> dict:
         return self.task_space.to_dict(self._task_vector)
 
@@ -209,8 +204,8 @@ class TrackEnv(gym.Env):
             "episode_return": float(self.rows.episode_return[0]),
             "instability_warnings": int(self.rows.warnings[0]),
             "rng_seed": self._np_random_seed,
-            "task/prev_shaping": float(self.rows.prev_shaping[0]),
-            "task/critical_contact": bool(self.rows.critical_contact[0]),
+            "rules/prev_shaping": float(self.rows.prev_shaping[0]),
+            "rules/critical_contact": bool(self.rows.critical_contact[0]),
             **env_state.rng_state(self.np_random),
             **self.physics.get(),
             **self._episode_state(),
@@ -235,8 +230,8 @@ class TrackEnv(gym.Env):
             "episode_return": env_state.scalar(state, "episode_return", "real"),
             "instability_warnings": env_state.scalar(state, "instability_warnings", "integer", 0),
             "rng_seed": None if seed is None else validation.integer("state['rng_seed']", seed, -1),
-            "task/prev_shaping": env_state.scalar(state, "task/prev_shaping", "real"),
-            "task/critical_contact": env_state.scalar(state, "task/critical_contact", "flag"),
+            "rules/prev_shaping": env_state.scalar(state, "rules/prev_shaping", "real"),
+            "rules/critical_contact": env_state.scalar(state, "rules/critical_contact", "flag"),
             "rng": env_state.rng_from_state(state),
             "physics": self.physics.check(state),
             "episode": self._check_episode_state(state),
@@ -258,8 +253,8 @@ class TrackEnv(gym.Env):
         self.rows.warnings[0] = s["instability_warnings"]
         self.np_random = s["rng"]
         self._np_random_seed = s["rng_seed"]
-        self.rows.prev_shaping[0] = s["task/prev_shaping"]
-        self.rows.critical_contact[0] = s["task/critical_contact"]
+        self.rows.prev_shaping[0] = s["rules/prev_shaping"]
+        self.rows.critical_contact[0] = s["rules/critical_contact"]
         self._set_episode_state(s["episode"])  # terrain first: the physics replay touches it
         self.physics.set(s["physics"])
 

@@ -124,14 +124,14 @@ def verify_checkpoint(folder: Path, config: TrainConfig) -> None:
         progress = read_state(folder / "progress")
     except ValueError as exc:
         raise DamagedCheckpoint(str(exc)) from None
-    check_fixed_settings(config, progress.get("config"), folder.name)
+    if not isinstance(progress.get("config"), dict):
+        raise DamagedCheckpoint(f"{folder.name}: progress records no training settings")
+    check_fixed_settings(config, progress["config"], folder.name)
 
 
-def check_fixed_settings(config: TrainConfig, trained: dict | None, checkpoint: str) -> None:
+def check_fixed_settings(config: TrainConfig, trained: dict, checkpoint: str) -> None:
     """The run's config must still be the one its checkpoint was trained with (config.yaml may
-    have been edited); checkpoints written before this check existed carry no settings."""
-    if trained is None:
-        return
+    have been edited)."""
     now = fixed_settings(config)
     for name in sorted(set(trained) | set(now)):
         if trained.get(name) != now.get(name):
