@@ -11,17 +11,18 @@ from acl3d.envs.tensor_vector import CpuTensorVectorEnv
 
 
 class _Tasks:
-    """A task source cycling through fixed tasks, recording the finished episodes."""
+    """A curriculum cycling through fixed tasks, recording the finished episodes."""
 
     def __init__(self, tasks):
         self.tasks, self.count, self.reports = tasks, 0, []
 
-    def next_task(self, index):
-        self.count += 1
-        return self.tasks[self.count % len(self.tasks)]
-
-    def episode_finished(self, index, report):
-        self.reports.append((index, report["return"], report["length"]))
+    def sync(self, finished, env_ids):
+        self.reports += list(zip(finished.env_ids.tolist(), finished.returns.tolist()))
+        out = []
+        for _ in env_ids:
+            self.count += 1
+            out.append(self.tasks[self.count % len(self.tasks)])
+        return np.asarray(out, np.float32).reshape(len(env_ids), -1)
 
 
 def _tasks(space):
@@ -35,10 +36,10 @@ def test_matches_numpy_vector_env_bit_for_bit():
         "stump-tracks", n, autoreset_mode=AutoresetMode.SAME_STEP, max_episode_steps=limit
     )
     source_np = _Tasks(_tasks(vec.task_space))
-    vec.task_source = source_np
+    vec.curriculum_sync = source_np
     tens = CpuTensorVectorEnv("stump-tracks", n, max_episode_steps=limit)
     source_t = _Tasks(_tasks(tens.task_space))
-    tens.vector.task_source = source_t
+    tens.vector.curriculum_sync = source_t
     try:
         obs_np, _ = vec.reset(seed=5)
         obs_t = tens.reset(seed=5)

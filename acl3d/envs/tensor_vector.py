@@ -20,8 +20,8 @@ Warp) implement the same thing and the student's loop never changes:
 
 Nothing in the contract is per-world Python; tensors stay on `device`. How a world's next task
 is chosen (the curriculum) is an argument of the implementation's constructor, not part of the
-contract: `CpuTensorVectorEnv` takes the batched env's `task_source` (`next_task(i)` at a
-world's reset, `episode_finished(i, report)` at the step its episode ends).
+contract: `CpuTensorVectorEnv` takes a `CurriculumSync` (`acl3d.envs.episode_statistics`), handed
+each step's finished episodes and asked for the next tasks of the worlds that reset, in one call.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class CpuTensorVectorEnv:
 
     Args:
         env_id, num_envs, threads, **env_kwargs: as `acl3d.envs.batched.BatchedEnvs`.
-        task_source: the curriculum hook (`next_task(i)`, `episode_finished(i, report)`).
+        curriculum_sync: the curriculum (`sync(finished, env_ids) -> tasks`), or None.
     """
 
     device = torch.device("cpu")
@@ -70,7 +70,7 @@ class CpuTensorVectorEnv:
         env_id: str,
         num_envs: int,
         threads: int | None = None,
-        task_source=None,
+        curriculum_sync=None,
         **env_kwargs,
     ):
         self.vector = BatchedVectorEnv(
@@ -78,7 +78,7 @@ class CpuTensorVectorEnv:
             num_envs,
             threads=threads,
             autoreset_mode=AutoresetMode.SAME_STEP,
-            task_source=task_source,
+            curriculum_sync=curriculum_sync,
             **env_kwargs,
         )
         self.num_envs = self.vector.num_envs
@@ -113,36 +113,27 @@ class CpuTensorVectorEnv:
         )
 
     # ------------------------------------------------------------------ exact snapshots
-    def get_state(self) -> list[dict]:
-        """Every world's running episode (env state, return, task, first observation), for a
-        checkpoint that continues bit for bit."""
-        vec, batch = self.vector, self.vector.batch
-        out = []
-        for i, env in enumerate(vec.envs):
+    def get_state(self) -> dict:
+        """Every world's running episode (env state, step count) and the episode statistics,
+        for a checkpoint that continues bit for bit."""
+        batch = self.vector.batch
+        worlds = []
+        for i, env in enumerate(self.vector.envs):
             batch.sync(i)
-            out.append(
-                {
-                    "env": env.get_state(),
-                    "length": int(batch.elapsed[i]),
-                    "return": float(vec._returns[i]),
-                    "task": vec._tasks[i].copy(),
-                    "initial_obs": np.asarray(vec._initial_obs[i]),
-                }
-            )
-        return out
+            worlds.append({"env": env.get_state(), "length": int(batch.elapsed[i])})
+        return {"worlds": worlds, "episodes": self.vector.stats.state_dict()}
 
-    def set_state(self, worlds: list[dict]) -> None:
+    def set_state(self, state: dict) -> None:
         """Inverse of `get_state()` on an env built with the same arguments."""
+        worlds = state["worlds"]
         if len(worlds) != self.num_envs:
             raise ValueError(f"state holds {len(worlds)} worlds; this env has {self.num_envs}")
-        vec, batch = self.vector, self.vector.batch
+        batch = self.vector.batch
         for i, world in enumerate(worlds):
-            vec.envs[i].set_state(world["env"])
+            self.vector.envs[i].set_state(world["env"])
             batch.restored(i)
             batch.elapsed[i] = int(world["length"])
-            vec._returns[i] = float(world["return"])
-            vec._tasks[i] = world["task"]
-            vec._initial_obs[i] = np.asarray(world["initial_obs"], dtype=np.float32)
+        self.vector.stats.load_state_dict(state["episodes"])
 
     def close(self) -> None:
         self.vector.close()

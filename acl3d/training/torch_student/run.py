@@ -43,22 +43,19 @@ EVAL_COLUMNS = ("step", "episodes", "mastered_pct", "mean_return", "std_return",
 
 
 class _Curriculum:
-    """The worlds' task source: the controller picks each world's next task and hears every
-    finished episode once; finished episodes wait in `finished` for the episode log."""
+    """The worlds' `CurriculumSync`: the controller learns every finished episode once, then
+    picks the next tasks of the worlds that reset; finished episodes wait in `finished` for the
+    episode log."""
 
     def __init__(self, controller):
-        self.controller, self.finished, self.episodes_done, self.total_steps = controller, [], 0, 0
+        self.controller, self.finished, self.episodes_done = controller, [], 0
 
-    def next_task(self, index: int) -> np.ndarray:
-        return np.asarray(self.controller.sample_training_task()[0], dtype=np.float32)
-
-    def episode_finished(self, index: int, report: dict) -> None:
-        self.controller.record_episode(
-            report["task"], report["return"], report["length"], report["success"],
-            initial_obs=report["initial_obs"],
-        )  # fmt: skip
-        self.episodes_done += 1
-        self.finished.append((self.total_steps, index, report))
+    def sync(self, finished, env_ids) -> np.ndarray:
+        if len(finished):
+            self.controller.record_episodes(finished)
+            self.episodes_done += len(finished)
+            self.finished.append(finished)
+        return self.controller.sample_training_tasks(len(env_ids))[0]
 
 
 class TorchRun:
@@ -96,7 +93,7 @@ class TorchRun:
     def _build(self) -> None:
         c = self.config
         self.env = CpuTensorVectorEnv(
-            c.env, c.n_envs, task_source=self.curriculum, body=c.body, **c.env_kwargs
+            c.env, c.n_envs, curriculum_sync=self.curriculum, body=c.body, **c.env_kwargs
         )
         self.student = rsl_ppo.RslPPO(
             self.params, self.env.observation_size, self.env.action_size, c.n_envs,
@@ -117,7 +114,7 @@ class TorchRun:
         self.student.load_state_dict(state["student"])
         runtime = load_state(folder / "runtime")
         self.controller.load_state_dict(load_state(folder / "controller"))
-        self.env.set_state(runtime["worlds"])
+        self.env.set_state(runtime["env"])
         progress = load_state(folder / "progress")
         self.curriculum.episodes_done = int(progress["episodes_done"])
         self.previous_wall_time = float(progress.get("wall_time_s", 0.0))
@@ -167,7 +164,6 @@ class TorchRun:
             with torch.inference_mode():
                 for _ in range(self.student.steps_per_env):
                     actions = self.student.act(obs)
-                    self.curriculum.total_steps = steps + n
                     obs, rewards, terminated, truncated, extras = self.env.step(actions)
                     self.student.record(rewards, terminated, truncated, extras["final_obs"])
                     steps += n
@@ -205,22 +201,21 @@ class TorchRun:
         self.tb.add_scalar("time/collection_share", collect / max(total, 1e-9), steps)
 
     def _log_episodes(self, steps: int) -> None:
-        finished, self.curriculum.finished = self.curriculum.finished, []
-        if not finished:
+        batches, self.curriculum.finished = self.curriculum.finished, []
+        if not batches:
             return
         self.episodes.write_rows(
-            [at, i, f"{r['return']:.6g}", r["length"], int(r["success"]), int(r["truncated"]),
-             *(f"{v:.6g}" for v in r["task"])]
-            for at, i, r in finished
-        )  # fmt: skip
+            [at, i, f"{r:.6g}", n, int(ok), int(cut), *(f"{v:.6g}" for v in task)]
+            for b in batches
+            for at, i, r, n, ok, cut, task in zip(
+                b.total_steps, b.env_ids, b.returns, b.lengths, b.successes, b.truncated, b.tasks
+            )
+        )
         if self.tb is not None:
-            reports = [r for _, _, r in finished]
-            self.tb.add_scalar(
-                "curriculum/episode_return", np.mean([r["return"] for r in reports]), steps
-            )
-            self.tb.add_scalar(
-                "curriculum/success_rate", np.mean([r["success"] for r in reports]), steps
-            )
+            returns = np.concatenate([b.returns for b in batches])
+            successes = np.concatenate([b.successes for b in batches])
+            self.tb.add_scalar("curriculum/episode_return", returns.mean(), steps)
+            self.tb.add_scalar("curriculum/success_rate", successes.mean(), steps)
             self.tb.add_scalar("curriculum/episodes", self.curriculum.episodes_done, steps)
 
     def _evaluate(self, steps: int) -> None:
@@ -256,7 +251,7 @@ class TorchRun:
             torch.save(
                 {"student": self.student.state_dict(), "cuda_rng": cuda}, folder / "student.pt"
             )
-            runtime = {"worlds": self.env.get_state(), "last_obs": obs.cpu().numpy()}
+            runtime = {"env": self.env.get_state(), "last_obs": obs.cpu().numpy()}
             save_state(folder / "runtime", runtime)
             save_state(folder / "controller", self.controller.state_dict())
             save_state(folder / "rng", ckpt.rng_state())
