@@ -126,3 +126,27 @@ def test_cli_and_bad_input(campaign, tmp_path, capsys):
     assert "baseline teacher 'riac' has no runs" in capsys.readouterr().err
     assert main(["analyze", str(tmp_path / "empty")]) == 2
     assert main(["analyze", str(root), "--reps", "5", "--out", str(out)]) == 2
+
+
+def test_corrected_tests_rank_test_and_power_beside_the_raw_p(campaign):
+    _, report, _ = campaign
+    final = [r for r in _rows(report / "final_scores.csv") if r["teacher"] == "alp-gmm"]
+    raw = np.array([float(r["p"]) for r in final])
+    holm = np.array([float(r["p_holm"]) for r in final])
+    assert np.all(holm >= raw - 1e-12) and holm.min() == pytest.approx(len(raw) * raw.min())
+    for row in final:
+        assert 0 < float(row["mw_p"]) <= float(row["mw_p_holm"]) <= 1
+        assert float(row["seeds_needed"]) >= 2
+    assert "significant_holm" in (report / "report.md").read_text()
+
+
+def test_probability_of_improvement_refused_below_three_runs(tmp_path):
+    for teacher, base in (("random", 10.0), ("alp-gmm", 30.0)):
+        for seed in range(2):
+            labels = {"teacher": teacher, "expert_knowledge": "low", "seed": seed}
+            _write_run(tmp_path, f"{teacher}__s{seed}", labels, [0, base, base + seed])
+    (tmp_path / "campaign.yaml").write_text(yaml.safe_dump({"spec": {"name": "t"}, "runs": []}))
+    report = analyze(tmp_path, reps=200)
+    aggregates = {r["teacher"]: r for r in _rows(report / "aggregates.csv")}
+    assert aggregates["alp-gmm"]["P(improvement)"] == "insufficient runs"
+    assert "insufficient runs" in (report / "report.md").read_text()

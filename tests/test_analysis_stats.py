@@ -65,3 +65,29 @@ def test_mean_band():
     assert (band.point, band.low, band.high) == (0.5, 0.0, 1.0)
     with pytest.raises(ValueError):
         stats.aggregate_interval([[1], []])
+
+
+def test_holm_adjusts_in_input_order_and_skips_undefined_tests():
+    adjusted = stats.holm([0.01, 0.04, 0.03, float("nan")])
+    np.testing.assert_allclose(adjusted[:3], [0.03, 0.06, 0.06])  # 3 x 0.01, then monotone
+    assert math.isnan(adjusted[3])
+    assert stats.holm([0.5, 0.9]).max() == 1.0  # capped at 1
+
+
+def test_mann_whitney_exact_floor_with_four_runs_a_side():
+    """4 vs 4 fully separated: the exact two-sided p is 2/70, the smallest there is."""
+    test = stats.mann_whitney([1, 2, 3, 4], [5, 6, 7, 8])
+    assert test.p == pytest.approx(2 / 70)
+    assert math.isnan(stats.mann_whitney([1, 1], [1, 1]).p)
+
+
+def test_seeds_needed_matches_the_t_test_power():
+    # d = 1 (pooled SD 1): the textbook 17 runs per side for 80% power at 0.05
+    assert stats.seeds_needed([0, 1, 2], [1, 2, 3]) == 17
+    assert stats.seeds_needed([0, 1, 2], [0, 1, 2]) == math.inf
+    assert math.isnan(stats.seeds_needed([1], [1, 2]))
+    assert stats.seeds_needed([0, 1, 2], [10, 11, 12]) == 2  # a huge effect: the minimum
+
+
+def test_probability_of_improvement_needs_three_runs_a_side():
+    assert not stats.enough_runs([1, 2], [1, 2, 3]) and stats.enough_runs([1, 2, 3], [4, 5, 6])

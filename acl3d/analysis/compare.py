@@ -119,18 +119,19 @@ class Comparison:
                 row[name] = stats.aggregate_interval(scores, func, reps, seed)
             if teacher != self.baseline:
                 pairs = self.paired_tasks(teacher)
-                if pairs:
-                    row["P(improvement)"] = stats.probability_of_improvement(
-                        [c.final(self.metric) for c, _ in pairs],
-                        [b.final(self.metric) for _, b in pairs],
-                        reps,
-                        seed,
-                    )
+                xs = [c.final(self.metric) for c, _ in pairs]
+                ys = [b.final(self.metric) for _, b in pairs]
+                if pairs and not stats.enough_runs(*xs, *ys):
+                    row["P(improvement)"] = stats.INSUFFICIENT
+                elif pairs:
+                    row["P(improvement)"] = stats.probability_of_improvement(xs, ys, reps, seed)
             rows.append(row)
         return rows
 
     def final_table(self) -> list[dict]:
-        """Per teacher and task: runs, mean, std, ratio to the baseline, Welch's test at the end."""
+        """Per teacher and task: runs, mean, std, ratio to the baseline, Welch's and the
+        Mann-Whitney test at the end with their Holm-adjusted p over the table's comparisons,
+        and the seeds per side a t-test would need for 80% power at the observed effect."""
         rows = []
         for teacher in self.teachers:
             for task in self.tasks_of(teacher):
@@ -151,8 +152,10 @@ class Comparison:
                     row["ratio"] = float(ratio)
                     test = stats.welch(values, b)
                     row.update(t=test.t, p=test.p, significant=test.significant)
+                    row["mw_p"] = stats.mann_whitney(values, b).p
+                    row["seeds_needed"] = stats.seeds_needed(values, b)
                 rows.append(row)
-        return rows
+        return with_holm(with_holm(rows, "p"), "mw_p")
 
     def welch_over_steps(self) -> list[dict]:
         """Welch's test against the baseline at every evaluation index."""
@@ -175,7 +178,7 @@ class Comparison:
                             "significant": test.significant,
                         }
                     )
-        return rows
+        return with_holm(rows, "p")
 
     def curves(self, reps: int, seed: int) -> list[dict]:
         """Mean over runs at every evaluation with 95% bootstrap bands, per cell."""
@@ -200,3 +203,14 @@ class Comparison:
                     }
                 )
         return rows
+
+
+def with_holm(rows: list[dict], column: str) -> list[dict]:
+    """`rows` with `<column>_holm`: Holm's correction over every row holding `column` (the
+    family of comparisons the table shows), and `significant_holm` for Welch's p."""
+    tested = [r for r in rows if column in r]
+    for row, adjusted in zip(tested, stats.holm([r[column] for r in tested])):
+        row[f"{column}_holm"] = float(adjusted)
+        if column == "p":
+            row["significant_holm"] = bool(np.isfinite(adjusted) and adjusted < stats.ALPHA)
+    return rows

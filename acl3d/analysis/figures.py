@@ -68,7 +68,7 @@ def intervals(comp: Comparison, aggregates: list[dict], path: Path) -> Path:
     colors = _colors(comp.teachers)
     for i, name in enumerate(names):
         ax = fig.add_subplot(1, len(names), i + 1)
-        rows = [r for r in aggregates if name in r]
+        rows = [r for r in aggregates if isinstance(r.get(name), stats.Interval)]  # not refused
         for y, row in enumerate(rows):
             iv = row[name]
             ax.plot([iv.low, iv.high], [y, y], color=colors[row["teacher"]], linewidth=6,

@@ -23,6 +23,7 @@ import yaml
 
 from acl3d import results
 from acl3d.analysis import stats
+from acl3d.analysis.compare import with_holm
 from acl3d.analysis.export import EVAL_TASK_COLUMNS, task_columns
 from acl3d.analysis.report import check_options, markdown_table, write_csv, write_report
 from acl3d.analysis.runs import Run, load_runs
@@ -153,7 +154,9 @@ def against_each(
     new_teachers: list[str], runs: list[Run], metric: str, reps: int, seed: int
 ) -> list[dict]:
     """Each new teacher against each reference teacher on final scores: means, P(new > ref)
-    with its bootstrap CI, Welch's t-test."""
+    with its bootstrap CI ("insufficient runs" below `stats.MIN_RUNS` on a side), Welch's and
+    the Mann-Whitney test with Holm's correction over these comparisons, and the seeds per side
+    a t-test would need for 80% power at the observed effect."""
     finals: dict[str, list[float]] = {}
     for r in runs:
         finals.setdefault(r.teacher, []).append(float(r.metrics[metric][-1]))
@@ -170,13 +173,19 @@ def against_each(
                     "mean": float(x.mean()),
                     "reference_mean": float(y.mean()),
                     "difference": float(x.mean() - y.mean()),
-                    "P(improvement)": stats.probability_of_improvement([x], [y], reps, seed),
+                    "P(improvement)": (
+                        stats.probability_of_improvement([x], [y], reps, seed)
+                        if stats.enough_runs(x, y)
+                        else stats.INSUFFICIENT
+                    ),
                     "t": test.t,
                     "p": test.p,
                     "significant": test.significant,
+                    "mw_p": stats.mann_whitney(x, y).p,
+                    "seeds_needed": stats.seeds_needed(x, y),
                 }
             )
-    return rows
+    return with_holm(with_holm(rows, "p"), "mw_p")
 
 
 def analyze_against(
@@ -205,14 +214,17 @@ def analyze_against(
     out.mkdir(parents=True, exist_ok=True)
     write_csv(rows, out / "against_each_reference.csv")
     columns = ["teacher", "reference", "mean", "reference_mean", "difference", "P(improvement)",
-               "p", "significant"]  # fmt: skip
+               "p", "p_holm", "mw_p", "mw_p_holm", "seeds_needed", "significant_holm"]  # fmt: skip
     extra = "\n".join(
         [
             "",
             f"## Against each teacher of the reference {label!r}",
             "",
             f"Final {metric}: P(improvement) = probability that a run of the new teacher beats "
-            "a run of the reference teacher (95% bootstrap CI); p: Welch's t-test (p < 0.05).",
+            'a run of the reference teacher (95% bootstrap CI; "insufficient runs" with fewer '
+            f"than {stats.MIN_RUNS} on a side); p: Welch's t-test; mw_p: Mann-Whitney U; *_holm: "
+            "Holm-adjusted over this table's comparisons (significant_holm: p_holm < 0.05); "
+            "seeds_needed: runs per side for 80% power at the observed effect.",
             "",
             markdown_table(rows, columns),
             "",

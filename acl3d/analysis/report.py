@@ -1,7 +1,8 @@
 """`analyze(root, out)`: tidy CSV, statistics tables, figures and a Markdown report.
 
 OUT/evaluations.csv        every evaluation of every run (labels, step, metrics)
-OUT/final_scores.csv       per teacher x task: runs, mean, std, ratio to baseline, Welch p
+OUT/final_scores.csv       per teacher x task: runs, mean, std, ratio to baseline, Welch and
+                           Mann-Whitney p (raw and Holm-adjusted), seeds needed for 80% power
 OUT/aggregates.csv         per teacher: IQM, mean, P(improvement) with 95% CIs
 OUT/welch_over_steps.csv   Welch's test against the baseline at every evaluation
 OUT/curves.csv             mean and 95% bootstrap band at every evaluation, per cell
@@ -15,7 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-from acl3d.analysis import figures
+from acl3d.analysis import figures, stats
 from acl3d.analysis.compare import Comparison
 from acl3d.analysis.runs import METRICS, Run, load_runs, write_tidy_csv
 from acl3d.analysis.stats import DEFAULT_REPS, Interval
@@ -126,7 +127,7 @@ def _steps_section(rows: list[dict], columns: list[str]) -> str:
         return "(no teacher shares a task with the baseline)"
     if len(rows) <= _MAX_MARKDOWN_ROWS:
         return markdown_table(rows, columns)
-    shown = [r for r in rows if r["significant"]][:_MAX_MARKDOWN_ROWS]
+    shown = [r for r in rows if r["significant_holm"]][:_MAX_MARKDOWN_ROWS]
     return (
         f"{len(rows)} tests; the {len(shown)} first significant ones below, all of them in "
         f"`welch_over_steps.csv`.\n\n" + markdown_table(shown, columns)
@@ -136,9 +137,10 @@ def _steps_section(rows: list[dict], columns: list[str]) -> str:
 def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
     done = sum(r.status == "finished" for r in runs)
     agg_cols = ["teacher", "runs", "tasks", "IQM", "mean", "P(improvement)"]
-    fin_cols = ["teacher", "task", "runs", "mean", "std", "baseline_mean", "ratio", "t", "p",
-                "significant"]  # fmt: skip
-    step_cols = ["teacher", "task", "step", "mean", "baseline_mean", "p", "significant"]
+    fin_cols = ["teacher", "task", "runs", "mean", "std", "baseline_mean", "ratio", "p",
+                "p_holm", "mw_p", "mw_p_holm", "seeds_needed", "significant_holm"]  # fmt: skip
+    step_cols = ["teacher", "task", "step", "mean", "baseline_mean", "p", "p_holm",
+                 "significant_holm"]  # fmt: skip
     parts = [
         f"# Campaign report: {comp.metric} against {comp.baseline}",
         "",
@@ -150,15 +152,23 @@ def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
         "",
         f"IQM and mean of the final {comp.metric} pooled over runs and tasks; P(improvement) = "
         f"probability that a run of the teacher beats a run of {comp.baseline} on the same task "
-        f"(rliable's definitions, {reps} bootstrap replicates).",
+        f"(rliable's definitions, {reps} bootstrap replicates); "
+        f'"{stats.INSUFFICIENT}" where a side has fewer than {stats.MIN_RUNS} runs.',
         "",
         markdown_table(aggregates, agg_cols),
         "",
-        f"## Per task, with Welch's t-test against {comp.baseline} (p < 0.05)",
+        f"## Per task, against {comp.baseline}",
+        "",
+        "p: Welch's t-test; mw_p: Mann-Whitney U (two-sided, exact without ties); *_holm: "
+        "Holm-adjusted over every comparison of this table; significant_holm: p_holm < 0.05 "
+        "(only these support a claim); seeds_needed: runs per side for a t-test to reach 80% "
+        "power at the observed effect (inf: no effect).",
         "",
         markdown_table(final, fin_cols),
         "",
         "## Welch's t-test at every evaluation",
+        "",
+        "p_holm: Holm-adjusted over every test of this section.",
         "",
         _steps_section(over_steps, step_cols),
         "",

@@ -13,6 +13,13 @@ may hold different numbers of runs.
 * Performance profile: for each threshold tau, the fraction of runs scoring above tau,
   averaged over tasks.
 * Welch's t-test: `scipy.stats.ttest_ind(x, y, equal_var=False)`, p < 0.05 (TeachMyAgent).
+* Holm's step-down correction of a family of p-values (the comparisons one table shows): a
+  claim holds when its adjusted p < 0.05, whatever the number of teachers compared.
+* Mann-Whitney U (two-sided; exact without ties): a rank test that assumes no normality. With
+  4 runs against 4 its p cannot go below 2/70 = 0.029, so few seeds cannot carry many claims.
+* Seeds needed: the smallest number of runs per side at which a two-sided t-test at 0.05 would
+  reach 80% power for the observed effect (Cohen's d, pooled SD), from the noncentral t.
+* P(improvement) needs `MIN_RUNS` runs on each side; with fewer it reads `INSUFFICIENT`.
 
 Computed with numpy/scipy rather than by importing rliable, because rliable 1.2.0 only imports
 with pandas<3 and arch<8; the definitions are rliable's and every function takes a seed.
@@ -149,3 +156,79 @@ def welch(x, y) -> Welch:
         return Welch(float("nan"), float("nan"))
     result = sps.ttest_ind(x, y, equal_var=False)
     return Welch(float(result.statistic), float(result.pvalue))
+
+
+MIN_RUNS = 3  # runs per side below which P(improvement) is not reported
+INSUFFICIENT = "insufficient runs"
+ALPHA = 0.05
+
+
+def enough_runs(*samples) -> bool:
+    """Whether every sample holds at least `MIN_RUNS` runs (P(improvement) is meaningful)."""
+    return all(np.asarray(s).size >= MIN_RUNS for s in samples)
+
+
+def holm(pvalues) -> np.ndarray:
+    """Holm-adjusted p-values of a family, in the input order; NaN entries (undefined tests)
+    stay NaN and do not count in the family."""
+    p = np.asarray(pvalues, dtype=np.float64).ravel()
+    out = np.full(p.shape, np.nan)
+    defined = np.flatnonzero(np.isfinite(p))
+    order = defined[np.argsort(p[defined], kind="stable")]
+    m, running = order.size, 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p[i]))
+        out[i] = running
+    return out
+
+
+@dataclass(frozen=True)
+class RankTest:
+    u: float
+    p: float
+
+
+def mann_whitney(x, y) -> RankTest:
+    """Two-sided Mann-Whitney U test of X against Y (exact for small samples without ties);
+    NaN when undefined (an empty side, or every value equal)."""
+    x, y = np.asarray(x, dtype=np.float64).ravel(), np.asarray(y, dtype=np.float64).ravel()
+    if x.size == 0 or y.size == 0 or np.ptp(np.concatenate([x, y])) == 0:
+        return RankTest(float("nan"), float("nan"))
+    result = sps.mannwhitneyu(x, y, alternative="two-sided", method="auto")
+    return RankTest(float(result.statistic), float(result.pvalue))
+
+
+def seeds_needed(x, y, power: float = 0.8, alpha: float = ALPHA, limit: int = 100_000) -> float:
+    """Runs per side for a two-sided t-test at `alpha` to reach `power` for the effect observed
+    between X and Y (Cohen's d with the pooled SD); inf for no effect or beyond `limit`, NaN when
+    undefined (fewer than 2 runs on a side, or no spread at all)."""
+    x, y = np.asarray(x, dtype=np.float64).ravel(), np.asarray(y, dtype=np.float64).ravel()
+    if x.size < 2 or y.size < 2:
+        return float("nan")
+    pooled = np.sqrt(
+        ((x.size - 1) * x.var(ddof=1) + (y.size - 1) * y.var(ddof=1)) / (x.size + y.size - 2)
+    )
+    if pooled == 0:
+        return float("nan")
+    d = abs(x.mean() - y.mean()) / pooled
+    if d == 0:
+        return float("inf")
+
+    def reached(n: int) -> bool:
+        df, shift = 2 * n - 2, d * np.sqrt(n / 2)
+        crit = sps.t.ppf(1 - alpha / 2, df)
+        achieved = sps.nct.sf(crit, df, shift) + sps.nct.cdf(-crit, df, shift)
+        if not np.isfinite(achieved):  # scipy's noncentral t fails at large df: normal limit
+            achieved = sps.norm.sf(crit - shift) + sps.norm.cdf(-crit - shift)
+        return bool(achieved >= power)
+
+    high = 2
+    while not reached(high):  # doubling, then bisection: power grows with n
+        if high >= limit:
+            return float("inf")
+        high = min(2 * high, limit)
+    low = max(2, high // 2)
+    while low < high:
+        mid = (low + high) // 2
+        low, high = (low, mid) if reached(mid) else (mid + 1, high)
+    return float(low)
