@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 from acl3d import atomic_files
+from acl3d.campaign.run_state import read_state
 from acl3d.cli import main
 from acl3d.training import TrainConfig, students
 from acl3d.training.run_dir import DamagedCheckpoint, RunDir
@@ -353,6 +354,7 @@ def test_latest_empty_or_naming_a_pruned_step_resumes_from_the_newest_checkpoint
     (run / "final_model.zip").unlink()
     RunDir(run).set_status("crashed")
     (run / "checkpoints" / "LATEST").write_text(latest)
+    assert read_state(run, 512).checkpoint_step == 512  # a campaign resumes it, never restarts
     assert main(["train", "--resume", str(run)]) == 0
     assert "LATEST " in capsys.readouterr().err
     assert (run / "checkpoints" / "LATEST").read_text() == LAST
@@ -394,7 +396,6 @@ def test_evaluate_on_a_crashed_run_falls_back_past_a_truncated_model(copy, capsy
 
 def test_running_with_a_dead_process_reads_as_crashed(copy, tmp_path):
     from acl3d.analysis.runs import load_runs
-    from acl3d.campaign.run_state import read_state
 
     run = copy()
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
@@ -432,3 +433,16 @@ def test_a_full_disk_at_start_leaves_no_directory(tmp_path, capsys, monkeypatch)
     assert main(["train", *TINY, "--out", str(out)]) == 1
     one_line_error(capsys, "no space left on device", "nothing was written")
     assert not (tmp_path / "new").exists()
+
+
+def test_provenance_is_carried_and_cleared_with_the_run(copy):
+    from acl3d.run_format.documents import read_provenance, write_provenance
+
+    run = copy()
+    assert read_provenance(run) is None  # a run written before provenance.json
+    write_provenance(run, {"acl3d": "1.0", "cpu": "x86_64"})
+    assert read_provenance(run) == {"acl3d": "1.0", "cpu": "x86_64"}
+    with pytest.raises(ValueError, match="provenance=\\[1\\]; valid: a mapping"):
+        write_provenance(run, [1])
+    RunDir(run).clear()
+    assert not (run / "provenance.json").exists()
