@@ -8,9 +8,11 @@ on torch (`TensorTrackRules`), episode sums in one `EpisodeStatistics` on the de
 
 A step: servos (per-world force caps) -> `frame_skip` substeps (one CUDA graph) -> rules ->
 episode statistics; then, if any world finished, one batched reset of those worlds: their
-curriculum tasks, their terrain (generated on the CPU by the track's own generator, each world
-on its own RNG stream seeded seed + i as a single env, and uploaded in one copy), their bodies
-placed, and one `forward` of the simulation (a graph too).
+curriculum tasks, their terrain, their bodies placed and pushed, and one `forward` of the
+simulation (a graph too). Plain stumps (Stump Tracks' task space) are built for all resetting
+worlds at once on the device (`TensorStumpTracks`, draws from a torch generator seeded at
+`reset(seed)`); other track kinds by the track's own generator on the CPU, world i on its own RNG
+stream seeded seed + i as a single env, uploaded in one copy.
 
 Differences from a single `TrackEnv` (docs/architecture.md): float32 physics on Warp; a reset
 world's first observation is taken right after its body is placed (the single env plays one
@@ -26,8 +28,9 @@ import torch
 from gymnasium.utils import seeding
 
 from acl3d import validation
-from acl3d.envs.arena import CONTROL_DT
+from acl3d.envs.arena import CONTROL_DT, INIT_PUSH
 from acl3d.envs.episode_statistics import CurriculumSync, EpisodeStatistics
+from acl3d.envs.tensor_terrain import TensorStumpTracks
 from acl3d.envs.tensor_track_rules import TensorTrackRules
 from acl3d.envs.track_env import TrackEnv
 from acl3d.sim.warp_backend import WarpSimulation
@@ -76,7 +79,11 @@ class ManyWorldTracks:
         self.elapsed = torch.zeros(n, dtype=torch.long, device=self.device)
         self.stats = EpisodeStatistics(n, len(self.task_space.names), device=self.device)
         self.tasks = np.tile(self.task_space.to_vector({}), (n, 1))
-        self._rngs = [seeding.np_random(None)[0] for _ in range(n)]
+        self.terrain = TensorStumpTracks(
+            env.arena.grid, tuple(self.task_space.names), env.arena.start_pad, self.device
+        )
+        self._generator = torch.Generator(device=self.device)
+        self._rngs: list = []  # the CPU generator's per-world streams (other track kinds)
         self._success_return = env.curriculum_profile.success_return
         self._home_qpos, self._push_scale = self._home_state()
         self.obs = torch.zeros((n, self.observation_size), **f)
@@ -91,10 +98,18 @@ class ManyWorldTracks:
 
     # ------------------------------------------------------------------ resets
     def reset(self, seed: int | None = None) -> torch.Tensor:
-        """Every world starts an episode; world i's terrain and push come from seed + i."""
+        """Every world starts an episode, its terrain and push drawn from `seed` (see the module
+        docstring)."""
         n = self.num_envs
         seed = validation.seed(seed)
-        self._rngs = [seeding.np_random(None if seed is None else seed + i)[0] for i in range(n)]
+        if seed is None:
+            self._generator.seed()
+        else:
+            self._generator.manual_seed(seed)
+        if not self.terrain.supported:
+            self._rngs = [
+                seeding.np_random(None if seed is None else seed + i)[0] for i in range(n)
+            ]
         ids = np.arange(n)
         tasks = self._next_tasks(self.stats.pop(), ids)
         self.obs = self._reset_worlds(ids, tasks, self.obs)
@@ -104,25 +119,35 @@ class ManyWorldTracks:
         if self.curriculum is None:
             return self.tasks[ids]
         tasks = np.asarray(self.curriculum.sync(finished, ids), dtype=np.float64)
-        for task in tasks:  # a teacher's task the generator cannot build is the teacher's bug
-            self.template.composition.check_buildable(self.task_space.to_dict(task))
         return tasks.reshape(len(ids), -1)
+
+    def _new_terrain(self, ids: np.ndarray, tasks: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """(heights (k, ncol), push velocities (k,)) of the resetting worlds' new episodes."""
+        f64 = {"device": self.device, "dtype": torch.float64}
+        if self.terrain.supported:
+            normals = self.terrain.draws(len(ids), self._generator)
+            lines = self.terrain.heights(torch.as_tensor(tasks, **f64), normals)
+            push = (
+                torch.rand(len(ids), generator=self._generator, **f64) * (2 * INIT_PUSH) - INIT_PUSH
+            )
+            return lines, push
+        env = self.template
+        lines, push = np.empty((len(ids), env.arena.grid.ncol)), np.empty(len(ids))
+        for row, (i, task) in enumerate(zip(ids, tasks)):
+            task = self.task_space.to_dict(task)
+            env.composition.check_buildable(task)  # a teacher's unbuildable task is its bug
+            lines[row] = env.generator.heights(task, self._rngs[i], env.arena.start_pad)
+            push[row] = self._rngs[i].uniform(-INIT_PUSH, INIT_PUSH)
+        return torch.as_tensor(lines, **f64), torch.as_tensor(push, **f64)
 
     def _reset_worlds(self, ids: np.ndarray, tasks: np.ndarray, obs: torch.Tensor):
         """New episodes on worlds `ids` (host indices) with `tasks`; returns obs with their rows
         replaced by their first observations."""
         env, n = self.template, self.num_envs
         self.tasks[ids] = tasks
-        lines = np.empty((len(ids), env.arena.grid.ncol))
-        push = np.empty(len(ids))
-        for row, (i, task) in enumerate(zip(ids, tasks)):
-            rng = self._rngs[i]
-            lines[row] = env.generator.heights(
-                self.task_space.to_dict(task), rng, env.arena.start_pad
-            )
-            push[row] = rng.uniform(-5.0, 5.0)
+        lines, push = self._new_terrain(ids, tasks)
         index = torch.as_tensor(ids, device=self.device)
-        lines_t = torch.as_tensor(lines, device=self.device, dtype=self.sim.dtype)
+        lines_t = lines.to(self.sim.dtype)
         self.heights[index, : lines.shape[1]] = lines_t
         terrain = self.sim.terrain("terrain")
         terrain[index] = (lines_t / MAX_TERRAIN_HEIGHT).clamp(0.0, 1.0)[:, None, :]
@@ -130,9 +155,7 @@ class ManyWorldTracks:
         mask[index] = True
         qpos = torch.as_tensor(self._home_qpos, device=self.device).expand(n, -1)
         qvel = torch.zeros((n, env.model.nv), device=self.device, dtype=self.sim.dtype)
-        qvel[index, env.arena.bound.root_dof] = torch.as_tensor(
-            push * self._push_scale, device=self.device, dtype=self.sim.dtype
-        )
+        qvel[index, env.arena.bound.root_dof] = (push * self._push_scale).to(self.sim.dtype)
         self.sim.reset_worlds(mask, qpos, qvel)
         x, first = self.rules.observe(self.sim, self.heights)
         shaping = self.rules.potential(x, first)
