@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1] / "acl3d"
 
 # Lowest first. "acl3d" is the package's own __init__: it registers the environments.
 TIERS: tuple[tuple[str, ...], ...] = (
-    ("validation", "assets", "rendering", "video", "overlay", "atomic_files"),
+    ("validation", "assets", "rendering", "video", "overlay", "atomic_files", "provenance"),
     ("task_space", "run_format"),
     ("curriculum_profile",),
     ("terrain", "bodies", "teachers", "toy", "playback"),

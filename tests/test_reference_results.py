@@ -59,6 +59,7 @@ def test_new_teacher_beside_the_reference(tmp_path, capsys):
         assert float(row["P(improvement)"]) == pytest.approx(wins)
     report = (out / "report.md").read_text()
     assert "## Against each teacher of the reference 'reference-mini'" in report
+    assert "records no provenance: CPU model and versions unknown" in report  # none recorded
     for figure in ("performance_profile.png", "aggregates.png", "curves_mean_return.png"):
         assert (out / figure).stat().st_size > 0
     # the combined tables hold the reference's teachers and the new one

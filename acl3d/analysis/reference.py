@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from acl3d import results
+from acl3d import provenance, results
 from acl3d.analysis import stats
 from acl3d.analysis.compare import with_holm
 from acl3d.analysis.export import EVAL_TASK_COLUMNS, task_columns
@@ -188,6 +188,19 @@ def against_each(
     return with_holm(with_holm(rows, "p"), "mw_p")
 
 
+def machine_notes(new: list[Run], reference: list[Run], label: str) -> list[str]:
+    """Where the new runs' CPU model or versions differ from the reference's (provenance.json;
+    'unknown' for runs that record none, as the shipped v1 runs): on another CPU a run of the
+    same code may diverge by more than the teachers' gaps."""
+    ref = provenance.load(reference[0].path)
+    notes: list[str] = []
+    for run in new:
+        for diff in provenance.differences(provenance.load(run.path), ref):
+            if diff not in notes:
+                notes.append(diff)
+    return [f"machine and versions against the reference {label!r}: {n}" for n in notes]
+
+
 def analyze_against(
     new_root,
     reference: str,
@@ -209,6 +222,9 @@ def analyze_against(
     check_protocol(new, reference_set, label)
     runs = merged_runs(new, reference_set, label)
     new_teachers = sorted({r.teacher for r in runs[len(reference_set) :]})
+    machine = machine_notes(new, reference_set, label)
+    for note in machine:
+        print(f"[acl3d] warning: {note}", file=sys.stderr, flush=True)
     rows = against_each(new_teachers, runs, metric, reps, seed)
     out = Path(out) if out is not None else Path(new_root) / f"report_vs_{label}"
     out.mkdir(parents=True, exist_ok=True)
@@ -227,6 +243,10 @@ def analyze_against(
             "seeds_needed: runs per side for 80% power at the observed effect.",
             "",
             markdown_table(rows, columns),
+            "",
+            "## Machine and versions",
+            "",
+            *(f"- {n}" for n in machine or ["same CPU model and versions as the reference"]),
             "",
         ]
     )

@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
+from acl3d import provenance
 from acl3d import validation as check
 from acl3d.atomic_files import is_disk_full
 from acl3d.run_format.tables import read_csv, truncate_csv
@@ -263,15 +264,18 @@ def _run(session: Session, target: int, user_callbacks, sections: dict, overwrit
     except KeyboardInterrupt:
         if started:
             _best_effort(run.set_status, "interrupted", latest_checkpoint=_latest(run))
+            _best_effort(provenance.close, run.path, "interrupted", int(model.num_timesteps))
         raise
     except BaseException as exc:
         if started:
             _record_crash(run, exc)
+            _best_effort(provenance.close, run.path, "crashed", int(model.num_timesteps))
         raise
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
     run.set_status("finished", steps=int(model.num_timesteps))
+    provenance.close(run.path, "finished", int(model.num_timesteps))
     return TrainResult(run.path, int(model.num_timesteps), _last_eval(run))
 
 
@@ -286,6 +290,8 @@ def _write_start(session: Session, sections: dict, overwrite: bool) -> None:
         run.restart_from(session.resume_from)
         run.update_config(config.to_dict(), **sections)
     run.set_status("running", pid=os.getpid())
+    event = "start" if session.resume_from is None else "resume"
+    provenance.record(run.path, event, int(session.model.num_timesteps), config.device)
 
 
 def _record_crash(run: RunDir, exc: BaseException) -> None:
