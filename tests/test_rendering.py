@@ -66,15 +66,44 @@ def test_egl_and_osmesa_render_the_same_frame(tmp_path):
     assert np.array_equal(egl, osmesa)
 
 
+def _pixel_of(model, data, camera: int, point, width: int, height: int) -> np.ndarray:
+    """(column, row) where `camera` (pinhole, MuJoCo's axes: it looks along its -z) sees `point`."""
+    local = data.cam_xmat[camera].reshape(3, 3).T @ (np.asarray(point) - data.cam_xpos[camera])
+    focal = (height / 2) / np.tan(np.radians(model.cam_fovy[camera]) / 2)
+    depth = -local[2]
+    assert depth > 0, "the point is behind the camera"
+    return np.array([width / 2 + focal * local[0] / depth, height / 2 - focal * local[1] / depth])
+
+
 def test_render_follows_the_walker_and_sees_new_terrain():
+    """The default camera keeps the walker at the same place in the frame wherever it goes,
+    and a new task's terrain reaches the renderer."""
+    import mujoco
+
     require_offscreen_gl()
-    env = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=160, height=120)
+    width, height = 160, 120
+    env = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=width, height=height)
     env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})
-    flat = env.render()
+    u = env.unwrapped
+    cam = mujoco.mj_name2id(u.model, mujoco.mjtObj.mjOBJ_CAMERA, u.arena.camera)
+    torso = u.model.cam_bodyid[cam]  # the camera rides on the walker's root body
+    start = env.render()
+    start_x, start_offset = u.data.xpos[torso][0], u.data.cam_xpos[cam] - u.data.xpos[torso]
+    start_pixel = _pixel_of(u.model, u.data, cam, u.data.xpos[torso], width, height)
+    u.data.qpos[u.model.jnt_qposadr[u.model.body_jntadr[torso]]] += 20.0  # 20 m along the track
+    mujoco.mj_forward(u.model, u.data)
+    ahead = env.render()
+    assert u.data.xpos[torso][0] - start_x == pytest.approx(20.0, abs=1e-3)
+    np.testing.assert_allclose(u.data.cam_xpos[cam] - u.data.xpos[torso], start_offset, atol=1e-3)
+    ahead_pixel = _pixel_of(u.model, u.data, cam, u.data.xpos[torso], width, height)
+    np.testing.assert_allclose(ahead_pixel, start_pixel, atol=0.05)  # pixels
+    assert 0 < start_pixel[0] < width and 0 < start_pixel[1] < height  # the walker is in view
+    assert not np.array_equal(start, ahead)  # the same walker over other ground
+
     env.reset(seed=0, options={"task": {"stump_height": 3.0, "obstacle_spacing": 0.2}})
     stumps = env.render()  # heights re-uploaded to the renderer after the new task
     env.close()
-    assert not np.array_equal(flat, stumps)
+    assert not np.array_equal(start, stumps)
 
 
 def test_bad_render_arguments():

@@ -103,11 +103,26 @@ def test_check_env_and_observation_sizes(body, observation, size):
 
 @pytest.mark.parametrize("body", ["spider", "dmc:ant", "dmc:cmu_humanoid", "small_bipedal"])
 def test_other_walkers_run_on_the_field(body):
+    """Each walker lands on the terrain and stays on the field, above the ground under it."""
     env = gym.make(ENV_ID, body=body)
-    obs, _ = env.reset(seed=0, options={"task": TASK})
-    for _ in range(5):
-        obs, reward, *_ = env.step(env.action_space.sample())
-    assert np.isfinite(obs).all() and np.isfinite(reward)
+    u = env.unwrapped
+    env.reset(seed=0, options={"task": TASK})
+    env.action_space.seed(0)
+    terrain = u.model.geom("terrain").id
+    root = u.model.cam_bodyid[u.model.camera(u.arena.camera).id]  # the camera rides the root
+    grid, touched = u.arena.grid, 0
+    for _ in range(40):
+        obs, reward, terminated, _, _ = env.step(env.action_space.sample())
+        assert np.isfinite(obs).all() and np.isfinite(reward)
+        contacts = u.data.contact[: u.data.ncon]
+        touched += any(terrain in (c.geom1, c.geom2) for c in contacts)
+        x, y, z = u.data.xpos[root]
+        assert grid.x_min < x < grid.x_max and abs(y) < grid.half_width
+        row, col = round((y + grid.half_width) / grid.cell), round((x - grid.x_min) / grid.cell)
+        assert z > u.arena.heights[row, col], f"{body}'s root below the ground at x={x:.2f}"
+        if terminated:
+            break
+    assert touched, f"{body} never touched the terrain"
 
 
 @pytest.mark.parametrize(

@@ -157,6 +157,8 @@ def test_toy_cli_rejects_bad_parameters(capsys):
     ids=["scatter", "gmm", "boxes", "box", "gaussian", "lesson"],
 )
 def test_every_plot_kind_renders(state):
+    """Each kind draws itself: the frame differs from the same frame without the state (and the
+    plain scatter from a frame without tasks), at the same size."""
     frame = {
         "episode": 10,
         "state": state,
@@ -165,7 +167,16 @@ def test_every_plot_kind_renders(state):
         "background": np.zeros((10, 10)),
     }
     image = render_frame(frame, [0, 0], [1, 1])
-    assert image.dtype == np.uint8 and image.ndim == 3 and image.std() > 0
+    assert image.dtype == np.uint8 and image.ndim == 3
+    without = (
+        {**frame, "state": None} if state is not None else {**frame, "tasks": np.zeros((0, 2))}
+    )
+    if state is None:
+        without["values"] = np.zeros(0)
+    other = render_frame(without, [0, 0], [1, 1])
+    assert other.shape == image.shape
+    changed = np.any(other != image, axis=2)
+    assert changed.sum() > 200, f"only {changed.sum()} pixels show the {state and state['kind']}"
 
 
 def test_gif_of_a_one_dimensional_teacher(tmp_path):
