@@ -4,6 +4,7 @@ env (all envs in this process) vs the one-env-per-process path, and vs Gymnasium
     python scripts/bench_training.py                    # ~2-4 min: ppo + sac
     python scripts/bench_training.py --students ppo --batched-envs 16 32 --teacher random
     python scripts/bench_training.py --update-threads 1 2   # PPO's update alone per torch threads
+    python scripts/bench_training.py --students ppo --batched-envs 16 32 --rsl-envs 16 32 64
 
 Every cell is `model.learn()` steps per wall-clock second after a warm-up (PPO: whole rollouts;
 SAC: past learning_starts, so gradient steps are included), with the `fast` preset for that
@@ -13,6 +14,10 @@ path (`--old-envs` SubprocVecEnv workers, forkserver, tasks pushed to worker que
 on the same SubprocVecEnv setting. "teacher" is the share of the batched run's wall time spent in
 the teacher (sampling tasks, recording episodes). Ratios compare cells measured in this run; on
 shared machines repeat with --repeats and read the best.
+
+`--rsl-envs`: the torch-native rsl-ppo student (its own loop on `CpuTensorVectorEnv`, the same
+teacher feeding the worlds) at these world counts, with its `--preset`-named preset: whole
+rollouts and updates after one warm-up rollout; compared with the best SB3 PPO batched cell.
 """
 
 from __future__ import annotations
@@ -92,6 +97,39 @@ def measure(kind, student, n_envs, steps, teacher, preset="fast"):
         env.close()
 
 
+def measure_rsl(n_envs: int, steps: int, teacher: str, preset: str) -> float:
+    """rsl-ppo's training steps/s (rollouts + updates) on `n_envs` CPU tensor worlds."""
+    from acl3d.envs.tensor_vector import CpuTensorVectorEnv
+    from acl3d.teachers.controller import TeacherController
+    from acl3d.training.torch_student.rsl_ppo import RslPPO
+    from acl3d.training.torch_student.run import _Curriculum
+
+    probe = make_env("stump-tracks", "classic_bipedal")
+    space, profile = probe.unwrapped.task_space, probe.unwrapped.curriculum_profile
+    probe.close()
+    source = _Curriculum(TeacherController(teacher, space, 0, profile=profile))
+    env = CpuTensorVectorEnv("stump-tracks", n_envs, curriculum_sync=source)
+    params = students.hyperparameters("rsl-ppo", preset, n_envs)
+    torch.manual_seed(0)
+    student = RslPPO(params, env.observation_size, env.action_size, n_envs, "cpu",
+                     env.action_low, env.action_high)  # fmt: skip
+    obs = env.reset(seed=0)
+    rollout = student.steps_per_env * n_envs
+    rounds = 1 + max(1, -(-steps // rollout))
+    try:
+        for r in range(rounds):  # round 0: warm-up
+            if r == 1:
+                start = time.perf_counter()
+            with torch.inference_mode():
+                for _ in range(student.steps_per_env):
+                    obs, rew, term, trunc, extras = env.step(student.act(obs))
+                    student.record(rew, term, trunc, extras["final_obs"])
+            student.update(obs)
+        return (rounds - 1) * rollout / (time.perf_counter() - start)
+    finally:
+        env.close()
+
+
 def update_seconds(thread_counts, n_envs: int, rounds: int) -> dict[int, float]:
     """PPO `fast`'s update (`model.train()`: 10 epochs over one rollout) in wall seconds, per
     torch thread count (best of interleaved rounds), on a rollout the batched env collected."""
@@ -123,6 +161,7 @@ def main() -> None:
     p.add_argument("--sac-steps", type=int, default=3000, help="timed SAC steps")
     p.add_argument("--repeats", type=int, default=1, help="best of N measurements per cell")
     p.add_argument("--preset", default="fast", choices=students.PRESETS, help="student preset")
+    p.add_argument("--rsl-envs", nargs="+", type=int, default=[], help="rsl-ppo world counts")
     p.add_argument(
         "--update-threads",
         nargs="+",
@@ -140,7 +179,12 @@ def main() -> None:
             print(f"  torch threads {t}: {seconds:.3f} s ({ratio:.2f}x)")
         return
 
-    rows = []
+    rows, rsl = [], {}
+    for _ in range(args.repeats):
+        for n in args.rsl_envs:
+            sps = measure_rsl(n, args.ppo_steps, args.teacher, args.preset)
+            rsl[n] = max(rsl.get(n, 0.0), sps)
+            print(f"  rsl-ppo tensor worlds x{n}: {sps:.0f} steps/s", flush=True)
     for student in args.students:
         steps = args.ppo_steps if student == "ppo" else args.sac_steps
         cells = [("batched", n) for n in args.batched_envs]
@@ -174,6 +218,24 @@ def main() -> None:
                 f"| {student} | {n} | {b:.0f} | {best[old]:.0f} | {best[walker]:.0f} "
                 f"| {b / best[old]:.2f} | {b / best[walker]:.2f} | {100 * share[n]:.2f}% |"
             )
+    if rsl:
+        sb3 = (
+            max(
+                (b[("batched", n)], n)
+                for s_, b, _ in rows
+                for n in args.batched_envs
+                if s_ == "ppo"
+            )
+            if "ppo" in args.students
+            else None
+        )
+        print()
+        print(f"rsl-ppo ('{args.preset}' preset) training steps/s on CPU tensor worlds")
+        print("| worlds | rsl-ppo | vs best SB3 PPO batched |")
+        print("|---|---|---|")
+        for n, sps in rsl.items():
+            ratio = f"{sps / sb3[0]:.2f}x (SB3 at {sb3[1]} envs)" if sb3 else "-"
+            print(f"| {n} | {sps:.0f} | {ratio} |")
 
 
 if __name__ == "__main__":
