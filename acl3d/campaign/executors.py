@@ -41,7 +41,22 @@ class Outcome:
     retry: bool = True
 
 
+def refuse_in_worker_import() -> None:
+    """A worker started with spawn or forkserver re-imports the user's main script (as
+    `__mp_main__`); a script that calls `run_campaign` at top level, without an
+    `if __name__ == "__main__":` guard, would start the campaign again in every worker (which
+    then died on the campaign lock). Refuse that with the fix in the message."""
+    main = sys.modules.get("__main__")
+    if getattr(main, "__name__", None) == "__mp_main__":
+        raise RuntimeError(
+            f"run_campaign was called while a campaign worker imported "
+            f"{getattr(main, '__file__', 'the main script')}: put the call under "
+            '`if __name__ == "__main__":` (workers re-import the script that starts them)'
+        )
+
+
 def check_executor(kind: str, max_parallel: int | None, address: str | None = None) -> None:
+    refuse_in_worker_import()
     if kind not in EXECUTORS:
         raise ValueError(f"executor {kind!r} unknown; valid: {', '.join(EXECUTORS)}")
     if max_parallel is not None and (

@@ -51,12 +51,51 @@ def _scaling_options(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="training option for every run (repeatable), e.g. --set steps=4096",
     )
+    p.add_argument(
+        "--only",
+        action="append",
+        metavar="AXIS=LABEL",
+        help="keep only the runs with this grid label or seed (repeatable), e.g. "
+        "--only teacher=alp-gmm --only seed=1 re-runs one cell",
+    )
 
 
 def _spec(args):
     from acl3d.campaign.spec import load_spec, parse_set
 
-    return load_spec(args.spec).scaled(args.budget, args.seeds, parse_set(args.sets))
+    spec = load_spec(args.spec).scaled(args.budget, args.seeds, parse_set(args.sets))
+    return narrowed(spec, args.only or [])
+
+
+def narrowed(spec, rules: list[str]):
+    """The spec restricted to the grid labels and seeds of `rules` ("AXIS=LABEL"; "seed=N"
+    keeps seed N, whether or not the spec lists it): one cell of a campaign."""
+    import dataclasses
+
+    grid, seeds = dict(spec.grid), list(spec.seeds)
+    for rule in rules:
+        axis, sep, label = rule.partition("=")
+        if not sep or not axis or not label:
+            raise ValueError(f"--only must be AXIS=LABEL, got {rule!r}")
+        if axis == "seed":
+            if not label.isdigit():
+                raise ValueError(f"--only seed must be an integer >= 0, got {label!r}")
+            seeds = [int(label)]
+            continue
+        if axis not in grid:
+            raise ValueError(f"--only {axis!r}: not an axis of {spec.name}; axes: "
+                             f"{', '.join([*grid, 'seed'])}")  # fmt: skip
+        values = grid[axis]
+        labels = [str(v) for v in values] if not isinstance(values, dict) else list(values)
+        if label not in labels:
+            raise ValueError(f"--only {axis}={label!r}: not in {spec.name}; {axis} is one of "
+                             f"{', '.join(labels)}")  # fmt: skip
+        grid[axis] = (
+            {label: values[label]}
+            if isinstance(values, dict)
+            else [v for v in values if str(v) == label]
+        )
+    return dataclasses.replace(spec, grid=grid, seeds=seeds)
 
 
 def run(args) -> int:
@@ -101,6 +140,7 @@ def _run(args) -> int:
         "budget": args.budget,
         "seeds": args.seeds,
         "set": args.sets or [],
+        "only": args.only or [],
         "executor": args.executor,
     }
     try:

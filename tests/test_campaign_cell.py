@@ -1,0 +1,45 @@
+"""Re-running one cell of a campaign (`--only`) and the Python recipe run as a script."""
+
+import sys
+import types
+
+import pytest
+
+from acl3d.campaign.executors import check_executor
+from acl3d.campaign.spec import load_spec
+from acl3d.cli import main
+from acl3d.cli.campaign import narrowed
+
+
+def test_only_keeps_one_teacher_and_seed():
+    spec = narrowed(load_spec("stump-v1"), ["teacher=alp-gmm", "seed=1"])
+    assert [r.name for r in spec.expand()] == ["alp-gmm__s1"]
+
+
+@pytest.mark.parametrize(
+    ("rule", "message"),
+    [
+        ("teacher=foo", "teacher is one of random"),
+        ("color=red", "axes: teacher, seed"),
+        ("seed=x", "integer"),
+        ("teacher", "AXIS=LABEL"),
+    ],  # fmt: skip
+)
+def test_only_names_what_is_valid(rule, message):
+    with pytest.raises(ValueError, match=message):
+        narrowed(load_spec("stump-v1"), [rule])
+
+
+def test_cli_shows_the_one_cell(capsys):
+    assert (
+        main(["campaign", "show", "stump-v1", "--only", "teacher=oracle", "--only", "seed=2"]) == 0
+    )
+    assert "# 1 runs" in capsys.readouterr().out
+
+
+def test_a_worker_reimporting_an_unguarded_script_gets_the_fix(monkeypatch):
+    worker_main = types.ModuleType("__mp_main__")
+    worker_main.__file__ = "recipe.py"
+    monkeypatch.setitem(sys.modules, "__main__", worker_main)
+    with pytest.raises(RuntimeError, match='if __name__ == "__main__"'):
+        check_executor("local", 2)
