@@ -60,10 +60,27 @@ def _line_mask(text: str, size: int) -> np.ndarray:
     return mask[:, : x + 1]
 
 
+def _advance(text: str, size: int) -> int:
+    return sum(_glyph(char, size)[1] for char in text)
+
+
+def wrap_line(text: str, size: int, max_width: int) -> list[str]:
+    """`text` cut between words into lines no wider than `max_width` pixels at font `size` (a
+    single word wider than that keeps its own line and is clipped at the frame's edge)."""
+    lines: list[str] = []
+    for word in text.split(" "):
+        if lines and _advance(f"{lines[-1]} {word}", size) <= max_width:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return lines
+
+
 def draw_label(
     frame: np.ndarray, lines: Sequence[str], size: int | None = None, corner: str = "top-left"
 ) -> np.ndarray:
-    """Draw `lines` in a dimmed box in a corner of `frame` (H, W, 3 uint8), in place; returns it."""
+    """Draw `lines` in a dimmed box in a corner of `frame` (H, W, 3 uint8), in place; returns it.
+    A line wider than the frame wraps between words (a task's parameters all stay visible)."""
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
         raise ValueError(
             f"frame: expected an (H, W, 3) uint8 array, got {frame.shape} {frame.dtype}"
@@ -72,7 +89,14 @@ def draw_label(
         raise ValueError(f"corner={corner!r}; valid: 'top-left', 'bottom-left'")
     if size is not None and (not isinstance(size, int) or isinstance(size, bool) or size < 4):
         raise ValueError(f"size={size!r}; valid: an integer >= 4 (pixels)")
-    masks = [_line_mask(line, size or font_size_for(frame.shape[0])) for line in lines if line]
+    size = size or font_size_for(frame.shape[0])
+    fitting = [
+        part
+        for line in lines
+        if line
+        for part in wrap_line(line, size, frame.shape[1] - 2 * PADDING)
+    ]
+    masks = [_line_mask(line, size) for line in fitting]
     if not masks:
         return frame
     line_h = max(m.shape[0] for m in masks) + 2
@@ -104,11 +128,18 @@ def _fmt(value, digits: int) -> str:
     return "[" + ",".join(f"{v:.{digits}f}" for v in values) + "]"
 
 
+OUTCOMES = ("", "success", "failed", "time limit")  # running, and how an episode ended
+
+
 def episode_lines(
-    title: str, task, step: int, episode_return: float, success: bool, done: bool
+    title: str, task, step: int, episode_return: float, outcome: str = ""
 ) -> list[str]:
-    """The standard playback label: title, task parameters, step, return and success."""
-    status = "success" if success else ("failed" if done else "")
+    """The standard playback label: title, task parameters, step, return and the outcome: ""
+    while running, "success", "failed" (the episode terminated without success) or "time limit"
+    (stopped by a step limit before either)."""
+    if outcome not in OUTCOMES:
+        raise ValueError(f"outcome={outcome!r}; valid: {', '.join(map(repr, OUTCOMES))}")
+    status = outcome
     return [
         title,
         format_task(task),

@@ -28,13 +28,14 @@ class EpisodePlayer:
         self.env, self.policy, self.title, self.overlay = env, policy, title, overlay
         self.obs = None
         self.steps, self.episode_return, self.success, self.done = 0, 0.0, False, True
+        self.outcome = ""  # see acl3d.overlay.OUTCOMES
         self.task: dict = {}
 
     def reset(self, task, seed: int | None) -> None:
         vector = np.asarray(task, dtype=np.float32)  # as the evaluation workers receive it
         self.obs, info = self.env.reset(seed=seed, options={"task": vector})
         self.task = self.env.unwrapped.get_task()
-        self.steps, self.episode_return, self.done = 0, 0.0, False
+        self.steps, self.episode_return, self.done, self.outcome = 0, 0.0, False, ""
         self.success = bool(info.get("success", False))
 
     def step(self, max_steps: int) -> None:
@@ -46,12 +47,18 @@ class EpisodePlayer:
         self.episode_return += float(reward)
         self.success = bool(info.get("success", False))
         self.done = bool(terminated or truncated) or self.steps >= max_steps
+        if self.success:
+            self.outcome = "success"
+        elif terminated:
+            self.outcome = "failed"
+        elif self.done:
+            self.outcome = "time limit"
 
     def frame(self) -> np.ndarray:
         frame = self.env.render()
         if self.overlay:
             lines = episode_lines(
-                self.title, self.task, self.steps, self.episode_return, self.success, self.done
+                self.title, self.task, self.steps, self.episode_return, self.outcome
             )
             draw_label(frame, lines)
         return frame

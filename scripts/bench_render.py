@@ -50,7 +50,7 @@ def main() -> None:
     )
     env.reset(seed=0, options={"task": TASK})
     rng = np.random.default_rng(0)
-    lines = episode_lines("run (alp-gmm)", TASK, 123, 45.6, False, False)
+    lines = episode_lines("run (alp-gmm)", TASK, 123, 45.6)
     frame = env.render()
 
     def step(_):

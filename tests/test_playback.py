@@ -65,7 +65,8 @@ def test_the_label_changes_only_its_corner():
 
 
 def test_playback_on_a_rendered_frame_labels_the_corner_only():
-    env = make_env("stump-tracks", "classic_bipedal", {"width": 160, "height": 120}, "rgb_array")
+    # 320 px: wide enough for the task line unwrapped (narrower frames wrap it onto more rows)
+    env = make_env("stump-tracks", "classic_bipedal", {"width": 320, "height": 120}, "rgb_array")
     player = EpisodePlayer(env, lambda obs: np.zeros(4, dtype=np.float32), "zero", overlay=True)
     player.reset(TASKS[1], seed=0)
     labelled = player.frame()

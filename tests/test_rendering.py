@@ -185,3 +185,24 @@ def test_a_missing_backend_library_names_the_backend_and_its_package(backend, li
     assert last.startswith("RuntimeError: OpenGL rendering failed"), proc.stderr
     assert f"MUJOCO_GL={backend}" in last and f"apt-get install {package}" in last
     assert "NoneType" in last  # the original error is kept in the message
+
+
+def test_a_long_label_wraps_inside_the_frame_and_episode_outcomes_are_named():
+    from acl3d.overlay import _advance, draw_label, episode_lines, font_size_for, wrap_line
+
+    task = {name: 1.0 for name in ("block_height", "block_width", "block_spacing")}
+    task |= {"cross_slope": 12.0, "hill_slope": 8.0, "roughness": 0.15}
+    lines = episode_lines("run (alp-gmm)", task, 120, 45.6, "time limit")
+    assert lines[-1].endswith("time limit") and "roughness=0.15" in lines[1]
+    size = font_size_for(480)
+    parts = wrap_line(lines[1], size, 640 - 16)
+    assert len(parts) > 1 and " ".join(parts) == lines[1]  # nothing cut, only wrapped
+    assert all(_advance(part, size) <= 640 - 16 for part in parts)
+    frame = np.zeros((480, 640, 3), dtype=np.uint8)
+    draw_label(frame, lines)
+    lit_rows = np.flatnonzero(frame.max(axis=(1, 2)) > 100)
+    one_line = np.zeros((480, 640, 3), dtype=np.uint8)
+    draw_label(one_line, lines[:1])
+    assert lit_rows.max() > 3 * np.flatnonzero(one_line.max(axis=(1, 2)) > 100).max()
+    with pytest.raises(ValueError, match="outcome"):
+        episode_lines("t", task, 1, 0.0, "done")
