@@ -107,3 +107,14 @@ def test_resetting_some_worlds_leaves_the_others_untouched(worlds):
     assert torch.equal(obs[1], obs_before[1])
     assert not torch.equal(sim.terrain("terrain")[0], terrain_before)  # world 0's new stumps
     assert worlds.stats.returns[0] == 0 and worlds.elapsed[0] == 0
+
+
+def test_a_restored_state_continues_as_the_original(worlds):
+    worlds.step(_actions(worlds, 11))
+    saved = worlds.get_state()
+    runs = []
+    for _ in range(2):
+        worlds.set_state(saved)
+        out = [worlds.step(_actions(worlds, 20 + k)) for k in range(3)]
+        runs.append((out[-1][0].clone(), torch.stack([o[1] for o in out])))
+    assert torch.equal(runs[0][0], runs[1][0]) and torch.equal(runs[0][1], runs[1][1])

@@ -205,5 +205,55 @@ class ManyWorldTracks:
         self.obs = obs
         return obs, reward, terminated, truncated, infos
 
+    # ------------------------------------------------------------------ checkpoints
+    _SIM_FIELDS = ("qpos", "qvel", "qacc_warmstart", "ctrl", "time")
+
+    def get_state(self) -> dict:
+        """Every world's running episode as numpy arrays (physics state, terrain, rules, episode
+        sums, tasks, the terrain generators' states), for a checkpoint."""
+        sim = self.sim
+        state = {f"sim/{name}": _host(sim.field(name)) for name in self._SIM_FIELDS}
+        state.update(
+            {
+                "sim/force_caps": _host(sim.force_caps()),
+                "sim/terrain": _host(sim.terrain("terrain")),
+                "heights": _host(self.heights),
+                "prev_shaping": _host(self.prev_shaping),
+                "elapsed": _host(self.elapsed),
+                "obs": _host(self.obs),
+                "tasks": self.tasks.copy(),
+                "stats": self.stats.state_dict(),
+                "generator": _host(self._generator.get_state()),
+                "rngs": [rng.bit_generator.state for rng in self._rngs],
+            }
+        )
+        return state
+
+    def set_state(self, state: dict) -> None:
+        """Continue from `get_state()` of worlds built with the same arguments."""
+        expected = (self.num_envs, self.observation_size)
+        if tuple(np.shape(state.get("obs"))) != expected:
+            raise ValueError(
+                f"state['obs'] has shape {np.shape(state.get('obs'))}; these worlds: {expected}"
+            )
+        sim = self.sim
+        for name in self._SIM_FIELDS:
+            sim.field(name).copy_(torch.as_tensor(state[f"sim/{name}"]))
+        sim.force_caps().copy_(torch.as_tensor(state["sim/force_caps"]))
+        sim.terrain("terrain").copy_(torch.as_tensor(state["sim/terrain"]))
+        for name in ("heights", "prev_shaping", "elapsed", "obs"):
+            getattr(self, name).copy_(torch.as_tensor(state[name]))
+        self.tasks[:] = state["tasks"]
+        self.stats.load_state_dict(state["stats"])
+        self._generator.set_state(torch.as_tensor(state["generator"], dtype=torch.uint8))
+        self._rngs = [seeding.np_random(None)[0] for _ in state["rngs"]]
+        for rng, rng_state in zip(self._rngs, state["rngs"]):
+            rng.bit_generator.state = rng_state
+
     def close(self) -> None:
         self.template.close()
+
+
+def _host(tensor: torch.Tensor) -> np.ndarray:
+    """A numpy copy (on the CPU, `.numpy()` alone would share the simulation's live memory)."""
+    return tensor.detach().cpu().numpy().copy()
