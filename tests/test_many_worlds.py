@@ -118,3 +118,26 @@ def test_a_restored_state_continues_as_the_original(worlds):
         out = [worlds.step(_actions(worlds, 20 + k)) for k in range(3)]
         runs.append((out[-1][0].clone(), torch.stack([o[1] for o in out])))
     assert torch.equal(runs[0][0], runs[1][0]) and torch.equal(runs[0][1], runs[1][1])
+
+
+def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
+    pytest.importorskip("rsl_rl")
+    from acl3d.cli import main
+
+    common = [
+        "--student", "rsl-ppo", "--env", "stump-tracks", "--teacher", "alp-gmm", "--seed", "2",
+        "--teacher-param", "fit_rate=10", "--teacher-param", "nb_bootstrap=5",
+        "--env-kwarg", "max_episode_steps=60", "--n-envs", "4", "--nb-test-episodes", "4",
+        "--student-param", "num_steps_per_env=32", "--student-param", "hidden_dims=[32, 32]",
+        "--eval-every", "256", "--checkpoint-every", "256", "--no-progress", "--quiet",
+        "--vec-env", "warp",
+    ]  # fmt: skip
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    assert main(["train", *common, "--steps", "512", "--out", str(whole)]) == 0
+    assert main(["train", *common, "--steps", "256", "--out", str(parts)]) == 0
+    assert main(["train", "--resume", str(parts), "--steps", "512", "--quiet"]) == 0
+    episodes = (whole / "episodes.csv").read_text()
+    assert len(episodes.splitlines()) > 8
+    assert episodes == (parts / "episodes.csv").read_text()
+    evals = [line.split(",")[:6] for line in (whole / "evals.csv").read_text().splitlines()]
+    assert evals == [line.split(",")[:6] for line in (parts / "evals.csv").read_text().splitlines()]

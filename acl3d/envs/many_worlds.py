@@ -28,6 +28,7 @@ import torch
 from gymnasium.utils import seeding
 
 from acl3d import validation
+from acl3d.envs import REGISTRY, env_id
 from acl3d.envs.arena import CONTROL_DT, INIT_PUSH
 from acl3d.envs.episode_statistics import CurriculumSync, EpisodeStatistics
 from acl3d.envs.tensor_terrain import TensorStumpTracks
@@ -38,6 +39,29 @@ from acl3d.sim.worlds import MAX_WORLDS, WorldFields
 from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT
 
 TRACK_WORLD_FIELDS = WorldFields(("terrain",), ("terrain",), force_caps=True)
+TRACK_ENTRY_POINT = "acl3d.envs.track_env:TrackEnv"
+
+
+def check_many_worlds(name: str):
+    """The registration of a registered env (an id or short name) the many-world simulation
+    runs: Stump and Hexagon Tracks today; ValueError naming the env for the other families."""
+    gym_id = env_id(name)
+    registration = next(r for r in REGISTRY.values() if r.id == gym_id)
+    if registration.entry_point != TRACK_ENTRY_POINT:
+        tracks = [r.id for r in REGISTRY.values() if r.entry_point == TRACK_ENTRY_POINT]
+        raise ValueError(
+            f"env={name!r} on the many-world simulation (vec_env warp); valid: "
+            f"{', '.join(tracks)} (Parkour and 3D Terrain run on the CPU batched env)"
+        )
+    return registration
+
+
+def many_worlds(name: str, num_envs: int, device, curriculum=None, **env_kwargs):
+    """The many-world simulation of a registered env (see `check_many_worlds`)."""
+    registration = check_many_worlds(name)
+    return ManyWorldTracks(
+        num_envs, device=device, curriculum=curriculum, **registration.kwargs, **env_kwargs
+    )
 
 
 class ManyWorldTracks:
@@ -69,6 +93,8 @@ class ManyWorldTracks:
         self.task_space, self.curriculum_profile = env.task_space, env.curriculum_profile
         self.curriculum = curriculum
         self.observation_size, self.action_size = env.rules.obs_size, env.body.action_size
+        self.action_low = torch.as_tensor(env.action_space.low, dtype=torch.float32)
+        self.action_high = torch.as_tensor(env.action_space.high, dtype=torch.float32)
         self.sim = WarpSimulation(
             env.model, self.num_envs, env.frame_skip, TRACK_WORLD_FIELDS, self.device
         )
@@ -118,7 +144,7 @@ class ManyWorldTracks:
     def _next_tasks(self, finished, ids: np.ndarray) -> np.ndarray:
         if self.curriculum is None:
             return self.tasks[ids]
-        tasks = np.asarray(self.curriculum.sync(finished, ids), dtype=np.float64)
+        tasks = np.asarray(self.curriculum.sync(finished.numpy(), ids), dtype=np.float64)
         return tasks.reshape(len(ids), -1)
 
     def _new_terrain(self, ids: np.ndarray, tasks: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:

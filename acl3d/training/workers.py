@@ -19,7 +19,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from acl3d.training.curriculum import CurriculumEnv
 
-VEC_ENV_KINDS: tuple[str, ...] = ("auto", "batched", "dummy", "subproc")
+# "warp": the many-world simulation on MuJoCo Warp (torch-native students; on --device's device)
+VEC_ENV_KINDS: tuple[str, ...] = ("auto", "batched", "dummy", "subproc", "warp")
 START_METHODS: tuple[str, ...] = ("forkserver", "spawn")
 
 

@@ -14,6 +14,7 @@ import torch
 from acl3d.envs.batched import MAX_ENVS
 from acl3d.envs.batched_vector import BatchedVectorEnv
 from acl3d.envs.curriculum_wrapper import INFO_KEY
+from acl3d.envs.many_worlds import many_worlds
 from acl3d.training.evaluation import EvalResult, own_random_streams
 
 
@@ -62,3 +63,49 @@ class WorldEvaluator:
 
     def close(self) -> None:
         self.vector.close()
+
+
+class ManyWorldEvaluator:
+    """`WorldEvaluator` on the many-world simulation (MuJoCo Warp): test task k is world k of
+    one `ManyWorldTracks` on the run's device, all played at once; the terrain draws come from
+    the evaluation seed, so every pass plays the same tracks."""
+
+    def __init__(self, config, tasks, device):
+        self.tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float64))
+        self.seed = config.eval_seed
+        self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
+        self.worlds = many_worlds(
+            config.env, self.num_worlds, device, body=config.body, **config.env_kwargs
+        )
+        self.success_return = float(self.worlds.curriculum_profile.success_return)
+
+    def run(self, policy) -> EvalResult:
+        """`policy((N, obs) float32 tensor on the device) -> (N, act) tensor`."""
+        n_tasks = len(self.tasks)
+        returns, lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
+        successes = np.zeros(n_tasks, dtype=bool)
+        with own_random_streams(self.seed):
+            for start in range(0, n_tasks, self.num_worlds):
+                chunk = np.arange(start, min(start + self.num_worlds, n_tasks))
+                self._play(policy, chunk, returns, lengths, successes)
+        return EvalResult(self.tasks, returns, lengths, successes, self.success_return)
+
+    def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
+        worlds, n = self.worlds, self.num_worlds
+        index = np.minimum(chunk[0] + np.arange(n), chunk[-1])  # spare worlds replay the last
+        worlds.tasks[:] = self.tasks[index]
+        obs = worlds.reset(seed=self.seed + int(chunk[0]))
+        running = torch.arange(n, device=worlds.device) < len(chunk)
+        while bool(running.any()):
+            obs, _, terminated, truncated, infos = worlds.step(policy(obs))
+            ended = (terminated | truncated) & running
+            rows = ended.nonzero()[:, 0]
+            if len(rows):
+                k = index[rows.cpu().numpy()]
+                returns[k] = infos["episode_return"][rows].cpu().numpy()
+                lengths[k] = infos["episode_length"][rows].cpu().numpy()
+                successes[k] = infos["success"][rows].cpu().numpy()
+                running &= ~ended
+
+    def close(self) -> None:
+        self.worlds.close()

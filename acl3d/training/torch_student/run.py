@@ -27,7 +27,8 @@ import torch
 
 from acl3d.atomic_files import atomic_replace, atomic_state_files, temp_prefix
 from acl3d.envs.batched import MAX_ENVS
-from acl3d.envs.tensor_vector import CpuTensorVectorEnv
+from acl3d.envs.many_worlds import check_many_worlds, many_worlds
+from acl3d.envs.tensor_vector import CpuTensorVectorEnv, TensorVectorEnv
 from acl3d.run_format.tables import CsvLog, truncate_csv
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
@@ -35,7 +36,7 @@ from acl3d.training.config import TrainConfig, fixed_settings, student_params
 from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
 from acl3d.training.torch_student import rsl_ppo
-from acl3d.training.torch_student.evaluation import WorldEvaluator
+from acl3d.training.torch_student.evaluation import ManyWorldEvaluator, WorldEvaluator
 
 EPISODE_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
 EVAL_COLUMNS = ("step", "episodes", "mastered_pct", "mean_return", "std_return", "mean_length",
@@ -78,11 +79,16 @@ class TorchRun:
             )
         self.params = student_params(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
-        if self.device.type != "cpu":
+        self.warp = config.vec_env == "warp" or (
+            config.vec_env == "auto" and self.device.type == "cuda"
+        )
+        if self.device.type != "cpu" and not self.warp:
             raise ValueError(
-                f"device={config.device!r}; valid for rsl-ppo here: cpu (the worlds of the CPU "
-                "batched env live on the CPU; a GPU simulation is not part of this install)"
+                f"vec_env={config.vec_env!r} with device={config.device!r}; valid on a GPU: "
+                "vec_env warp or auto (the CPU batched env's worlds live on the CPU)"
             )
+        if self.warp:
+            check_many_worlds(config.env)
         self.curriculum = _Curriculum(self.controller)
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
 
@@ -92,14 +98,22 @@ class TorchRun:
     # ------------------------------------------------------------------ building
     def _build(self) -> None:
         c = self.config
-        self.env = CpuTensorVectorEnv(
-            c.env, c.n_envs, curriculum_sync=self.curriculum, body=c.body, **c.env_kwargs
-        )
+        self.env: TensorVectorEnv
+        if self.warp:
+            self.env = many_worlds(
+                c.env, c.n_envs, self.device, curriculum=self.curriculum, body=c.body,
+                **c.env_kwargs,
+            )  # fmt: skip
+            self.evaluator = ManyWorldEvaluator(c, self.controller.test_tasks(), self.device)
+        else:
+            self.env = CpuTensorVectorEnv(
+                c.env, c.n_envs, curriculum_sync=self.curriculum, body=c.body, **c.env_kwargs
+            )
+            self.evaluator = WorldEvaluator(c, self.controller.test_tasks())
         self.student = rsl_ppo.RslPPO(
             self.params, self.env.observation_size, self.env.action_size, c.n_envs,
             self.device, self.env.action_low, self.env.action_high,
         )  # fmt: skip
-        self.evaluator = WorldEvaluator(c, self.controller.test_tasks())
         if "value_estimator" in self.controller.needs:
             self.controller.set_value_estimator(
                 lambda states: (
