@@ -81,10 +81,10 @@ def wrapped_singles(n: int):
 
 
 def syllabus_source():
-    from syllabus_curriculum import SyllabusTaskSource, domain_randomization
+    from syllabus_curriculum import SyllabusSync, domain_randomization
 
     space = BatchedVectorEnv(ENV, 1, threads=1).task_space
-    return SyllabusTaskSource(domain_randomization(space, seed=0))
+    return SyllabusSync(domain_randomization(space, seed=0))
 
 
 CELLS = {
@@ -103,7 +103,7 @@ CELLS = {
         wrapped_singles(a.n), a.random_steps
     ),
     "Syllabus DomainRandomization, batched": lambda a: random_steps(
-        BatchedVectorEnv(ENV, a.n, task_source=syllabus_source()), a.random_steps
+        BatchedVectorEnv(ENV, a.n, curriculum_sync=syllabus_source()), a.random_steps
     ),
 }  # fmt: skip
 

@@ -34,25 +34,15 @@ from acl3d.training.workers import make_env, make_vec_env
 
 
 class TimedCurriculumVecEnv(CurriculumVecEnv):
-    """Counts the wall time spent on the teacher side (sampling, pushing, reporting)."""
+    """Counts the wall time spent on the teacher side (learning episodes, sampling tasks)."""
 
     teacher_time = 0.0
 
-    def _push(self, index):
+    def _sync(self, finished, n):
         start = time.perf_counter()
-        super()._push(index)
+        out = super()._sync(finished, n)
         TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
-
-    def next_task(self, index):
-        start = time.perf_counter()
-        task = super().next_task(index)
-        TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
-        return task
-
-    def _report(self, worker, info):
-        start = time.perf_counter()
-        super()._report(worker, info)
-        TimedCurriculumVecEnv.teacher_time += time.perf_counter() - start
+        return out
 
 
 def build_env(kind: str, n_envs: int, teacher: str, seed: int, student: str):

@@ -26,22 +26,21 @@ from acl3d.teachers.controller import TeacherController
 SPACE = TaskSpace.from_bounds({"stump_height": [0.0, 3.0], "obstacle_spacing": [0.0, 6.0]})
 
 
-class RecordingSource:
-    """A task source that logs every call, with tasks from a seeded generator."""
+class RecordingSync:
+    """A curriculum sync that logs every episode and task, with tasks from a seeded generator."""
 
     def __init__(self, seed=0):
         self.rng = np.random.default_rng(seed)
         self.log: list[tuple] = []
-        self.given: dict[int, list[np.ndarray]] = {}
 
-    def next_task(self, index):
-        task = self.rng.uniform(SPACE.low, SPACE.high).astype(np.float32)
-        self.given.setdefault(index, []).append(task)
-        self.log.append(("next", index, task))
-        return task
-
-    def episode_finished(self, index, report):
-        self.log.append(("finished", index, report))
+    def sync(self, finished, env_ids):
+        for k, index in enumerate(finished.env_ids):
+            report = {"task": finished.tasks[k], "return": finished.returns[k]}
+            self.log.append(("finished", int(index), report))
+        tasks = self.rng.uniform(SPACE.low, SPACE.high, (len(env_ids), 2)).astype(np.float32)
+        for index, task in zip(env_ids, tasks):
+            self.log.append(("next", int(index), task))
+        return tasks
 
 
 def vector(n=3, limit=25, **kw) -> BatchedVectorEnv:
@@ -56,9 +55,9 @@ def vector(n=3, limit=25, **kw) -> BatchedVectorEnv:
 
 
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
-def test_task_source_hears_every_episode_once_before_choosing_again(mode):
-    source = RecordingSource()
-    vec = vector(autoreset_mode=mode, task_source=source)
+def test_curriculum_sync_hears_every_episode_once_before_choosing_again(mode):
+    source = RecordingSync()
+    vec = vector(autoreset_mode=mode, curriculum_sync=source)
     vec.reset(seed=0)
     rng = np.random.default_rng(1)
     returns = np.zeros(3)
@@ -182,9 +181,12 @@ def test_bad_gymnasium_task_spaces_raise(space, match):
     "kwargs, match",
     [
         ({"autoreset_mode": "Disabled"}, "autoreset_mode"),
-        ({"task_source": object()}, "task_source"),
+        ({"curriculum_sync": object()}, "curriculum_sync"),
         ({"teacher": object()}, "teacher"),
-        ({"teacher": make_teacher("random", SPACE), "task_source": RecordingSource()}, "exclusive"),
+        (
+            {"teacher": make_teacher("random", SPACE), "curriculum_sync": RecordingSync()},
+            "exclusive",
+        ),
     ],
 )
 def test_bad_vector_env_arguments_raise(kwargs, match):

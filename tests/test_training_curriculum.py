@@ -56,7 +56,7 @@ class RecordingController:
     """Stand-in TeacherController: numbered tasks, remembers what it sampled and was told."""
 
     def __init__(self, needs=()):
-        self.needs = set(needs)
+        self.needs = frozenset(needs)
         self.sampled: list[np.ndarray] = []
         self.recorded: list[tuple] = []
         self.steps = 0
@@ -67,11 +67,27 @@ class RecordingController:
         self.sampled.append(task)
         return task
 
-    def record_episode(self, task, episode_return, length, success, initial_obs=None):
-        self.recorded.append((np.asarray(task), episode_return, length, success, initial_obs))
+    def sample_training_tasks(self, n):
+        tasks = np.array([self.sample_task() for _ in range(n)], np.float32).reshape(n, 2)
+        return tasks, np.zeros(n, bool)
+
+    def record_episodes(self, finished):
+        for k in range(len(finished)):
+            self.recorded.append(
+                (
+                    np.asarray(finished.tasks[k]),
+                    float(finished.returns[k]),
+                    int(finished.lengths[k]),
+                    bool(finished.successes[k]),
+                    None if finished.initial_obs is None else finished.initial_obs[k],
+                )
+            )
 
     def record_step(self, state, action, reward, next_state, done, worker=0):
         self.steps += 1
+
+    def maybe_sample_periodically(self, total_steps):
+        return None
 
 
 def run_random_steps(venv, n_steps: int, seed: int = 0):
@@ -130,9 +146,11 @@ def test_each_worker_plays_its_own_tasks_in_order():
     pushed: dict[int, list[int]] = {0: [], 1: []}
     original_push = venv._push
 
-    def spy(index):
-        original_push(index)
-        pushed[index].append(len(controller.sampled) - 1)
+    def spy(ids, finished):
+        original_push(ids, finished)
+        first = len(controller.sampled) - len(ids)
+        for k, index in enumerate(ids):
+            pushed[int(index)].append(first + k)
 
     venv._push = spy
     history = run_random_steps(venv, 40)
@@ -224,7 +242,7 @@ def test_batched_sub_envs_pull_tasks_at_their_own_reset():
     from acl3d.vec.batched_sb3 import BatchedVecEnv
 
     n = 3
-    controller = StumpController(needs={"step_rewards"})
+    controller = StumpController()
     venv = BatchedVecEnv("stump-tracks", n, curriculum=True, max_episode_steps=12)
     try:
         truncated = check_batched_counts(venv, controller, 50, tasks_ahead=n)
@@ -233,7 +251,27 @@ def test_batched_sub_envs_pull_tasks_at_their_own_reset():
     assert truncated > 0
     # pulled at reset: never more than one task per sub-env handed out ahead of the reports
     assert controller.most_ahead == n
-    assert controller.steps == 50 * n
+
+
+def test_a_teacher_of_steps_gets_every_step_before_the_episode_it_ends():
+    """On the batched env too, a "step_rewards" teacher is fed through the worker queues, so
+    each episode's last step is recorded before the episode."""
+    from acl3d.vec.batched_sb3 import BatchedVecEnv
+
+    n = 3
+    controller = StumpController(needs={"step_rewards"})
+    order = []
+    controller.record_step = lambda *a, **k: order.append("step") or None
+    record_episodes = controller.record_episodes
+    controller.record_episodes = lambda f: order.append("episodes") or record_episodes(f)
+    venv = BatchedVecEnv("stump-tracks", n, curriculum=True, max_episode_steps=12)
+    try:
+        check_batched_counts(venv, controller, 50, tasks_ahead=2 * n)  # running + prefetched
+    finally:
+        venv.close()
+    assert order.count("step") == 50 * n
+    ends = [k for k, what in enumerate(order) if what == "episodes"]
+    assert ends and all(order[k - 1] == "step" for k in ends)
 
 
 def test_batched_workers_keep_every_sub_env_queue_exact():

@@ -10,12 +10,14 @@ Autoreset (declared in `metadata["autoreset_mode"]`, as `SyncVectorEnv` does it)
 * `SAME_STEP`: a sub-env that ends is reset within the same `step`; its last observation and
   info are in `infos["final_obs"]` / `infos["final_info"]` (masks `_final_obs`, `_final_info`).
 
-Curricula (`task_source`, see `acl3d.envs.curriculum_wrapper`): every reset that names no task
-plays `task_source.next_task(i)`; every finished episode is reported once, with the task it
-played, to `task_source.episode_finished(i, report)` during the step that ends it, hence
-before that sub-env's next task is chosen. The same report is in `infos["curriculum"]`
-(mask `_curriculum`). `teacher=` is the shortcut for `task_source=TeacherTaskSource(teacher)`.
-Episodes cut short by `reset()` are not reported.
+Curricula (`curriculum_sync`, a `acl3d.envs.episode_statistics.CurriculumSync`): episodes are
+summed by one `EpisodeStatistics`; the step that ends episodes hands them to
+`curriculum_sync.sync(finished, env_ids)` once, with the tasks they played, before any of those
+sub-envs' next tasks is chosen (SAME_STEP: in that same call, which returns their next tasks;
+NEXT_STEP: the resets of the next step ask for theirs). Resets that name no task play the
+tasks `sync` returns. The same reports are in `infos["curriculum"]` (mask `_curriculum`).
+`teacher=` is the shortcut for `curriculum_sync=TeacherSync(teacher)`. Episodes cut short by
+`reset()` are not reported.
 
 A sub-env that resets under NEXT_STEP is stepped by the engine with the others and then reset;
 steps draw no randomness, so sub-env i still plays exactly what a single env plays.
@@ -29,7 +31,8 @@ from gymnasium.vector.utils import batch_space
 
 from acl3d import validation
 from acl3d.envs.batched import BatchedEnvs
-from acl3d.envs.curriculum_wrapper import INFO_KEY, TeacherTaskSource, episode_report
+from acl3d.envs.curriculum_wrapper import INFO_KEY, episode_report
+from acl3d.envs.episode_statistics import EpisodeBatch, EpisodeStatistics, TeacherSync
 
 AUTORESET_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
@@ -40,9 +43,9 @@ class BatchedVectorEnv(VectorEnv):
     Args:
         env_id, num_envs, threads, **env_kwargs: as `BatchedEnvs`.
         autoreset_mode: `AutoresetMode.NEXT_STEP` (default) or `SAME_STEP` (or their names).
-        task_source: a `TaskSource` choosing each sub-env's tasks (see the module docstring).
-        teacher: an acl3d teacher (or any object with `sample_task` / `episodic_update`) shared
-            by all sub-envs; exclusive with `task_source`.
+        curriculum_sync: a `CurriculumSync` choosing the sub-envs' tasks (module docstring).
+        teacher: an acl3d teacher (anything with `sample_tasks(n)` / `update_batch(...)`)
+            shared by all sub-envs; exclusive with `curriculum_sync`.
     """
 
     def __init__(
@@ -51,26 +54,24 @@ class BatchedVectorEnv(VectorEnv):
         num_envs: int,
         threads: int | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-        task_source=None,
+        curriculum_sync=None,
         teacher=None,
         **env_kwargs,
     ):
         mode = _autoreset_mode(autoreset_mode)
-        if teacher is not None and task_source is not None:
-            raise ValueError("teacher and task_source are exclusive: give one of them")
+        if teacher is not None and curriculum_sync is not None:
+            raise ValueError("teacher and curriculum_sync are exclusive: give one of them")
         if teacher is not None:
-            task_source = TeacherTaskSource(teacher)
-        elif task_source is not None and not all(
-            callable(getattr(task_source, m, None)) for m in ("next_task", "episode_finished")
-        ):
+            curriculum_sync = TeacherSync(teacher)
+        elif curriculum_sync is not None and not callable(getattr(curriculum_sync, "sync", None)):
             raise validation.fail(
-                "task_source",
-                task_source,
-                "an object with next_task(i) and episode_finished(i, report)",
+                "curriculum_sync",
+                curriculum_sync,
+                "a CurriculumSync: an object with sync(finished, env_ids)",
             )
         self.batch = BatchedEnvs(env_id, num_envs, threads=threads, **env_kwargs)
         self.metadata = {"autoreset_mode": mode, "render_modes": []}
-        self.task_source = task_source
+        self.curriculum_sync = curriculum_sync
         self.num_envs = n = self.batch.num_envs
         self.single_observation_space = self.batch.single_observation_space
         self.single_action_space = self.batch.single_action_space
@@ -78,9 +79,7 @@ class BatchedVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, n)
         self.envs = self.batch.envs
         self.task_space = self.batch.task_space
-        self._returns = np.zeros(n)
-        self._tasks = np.zeros((n, self.task_space.dim), dtype=np.float32)
-        self._initial_obs = [None] * n
+        self.stats = EpisodeStatistics(n, self.task_space.dim)
         self._autoreset = np.zeros(n, dtype=bool)
         self._next_step = mode == AutoresetMode.NEXT_STEP
         self._every_env = np.ones(n, dtype=bool)
@@ -90,59 +89,67 @@ class BatchedVectorEnv(VectorEnv):
         """`seed`: None, an int s (sub-env i seeded s + i) or one per sub-env; `options`: a dict
         for all sub-envs (e.g. {"task": ...}) or one dict per sub-env."""
         seeds = self.batch.seeds(seed)
-        per_env = self.batch.per_env_options(options)
-        results = [self._reset_one(i, seeds[i], per_env[i]) for i in range(self.num_envs)]
+        per_env = [dict(o or {}) for o in self.batch.per_env_options(options)]
+        ids = np.arange(self.num_envs)
+        obs, infos = self._reset_many(ids, EpisodeBatch.empty(self.task_space.dim), seeds, per_env)
         self._autoreset[:] = False
-        infos = [info for _, info in results]
-        return np.stack([obs for obs, _ in results]), _stack_infos(infos, self._every_env)
+        return obs, _stack_infos(infos, self._every_env)
 
-    def _reset_one(self, i: int, seed=None, options=None):
-        """Reset sub-env i on the task of `options`, else on its task source's next one."""
-        options = dict(options or {})
-        if "task" not in options and self.task_source is not None:
-            options["task"] = self.task_source.next_task(i)
-        obs, info = self.batch.reset_one(i, seed, options)
-        self._tasks[i] = self.envs[i].task_vector
-        self._returns[i] = 0.0
-        self._initial_obs[i] = obs.copy()
-        return obs, info
+    def _reset_many(self, ids, finished: EpisodeBatch, seeds=None, options=None):
+        """Reset sub-envs `ids` (after handing `finished` to the curriculum) on their options'
+        tasks, else on the tasks `curriculum_sync` returns; their (observations, infos)."""
+        options = options or [{} for _ in range(self.num_envs)]
+        seeds = seeds or [None] * self.num_envs
+        pull = [i for i in ids if "task" not in options[i]]
+        if self.curriculum_sync is not None and (len(pull) or len(finished)):
+            for i, task in zip(
+                pull, self.curriculum_sync.sync(finished, np.asarray(pull, np.int64))
+            ):
+                options[i]["task"] = task
+        obs, infos = [], []
+        for i in ids:
+            o, info = self.batch.reset_one(int(i), seeds[i], options[i])
+            obs.append(o)
+            infos.append(info)
+        if len(ids):
+            tasks = np.stack([self.envs[i].task_vector for i in ids])
+            self.stats.begin(np.asarray(ids, np.int64), tasks, np.stack(obs))
+        return (np.stack(obs) if obs else None), infos
 
     def step(self, actions):
         obs, rewards, terminated, truncated, infos = self.batch.step(actions)
-        self._returns += rewards
-        for i in self._autoreset.nonzero()[0]:  # NEXT_STEP: ended at the previous step
-            obs[i], infos[i] = self._reset_one(int(i))
-            rewards[i], terminated[i], truncated[i] = 0.0, False, False
-        done = terminated | truncated
-        ended = done.nonzero()[0]
-        for i in ended:
-            infos[i][INFO_KEY] = self._report(int(i), infos[i], terminated[i], truncated[i])
+        restart = self._autoreset.nonzero()[0]  # NEXT_STEP: ended at the previous step
+        if len(restart):
+            rewards[restart], terminated[restart], truncated[restart] = 0.0, False, False
+        success = np.fromiter((info.get("success", False) for info in infos), bool, self.num_envs)
+        done = self.stats.step(rewards, terminated, truncated, success)
+        if len(restart):
+            empty = EpisodeBatch.empty(self.task_space.dim)
+            new_obs, new_infos = self._reset_many(restart, empty)
+            obs[restart] = new_obs
+            for i, info in zip(restart, new_infos):
+                infos[i] = info
+        finished = self.stats.pop()
+        for k, i in enumerate(finished.env_ids):
+            infos[i][INFO_KEY] = episode_report(
+                finished.tasks[k], finished.returns[k], finished.lengths[k],
+                finished.successes[k], finished.truncated[k], finished.initial_obs[k],
+            )  # fmt: skip
         out = _stack_infos(infos, self._every_env)
+        ended = finished.env_ids
         if self._next_step:
             self._autoreset = done
+            if len(finished) and self.curriculum_sync is not None:
+                self.curriculum_sync.sync(finished, np.zeros(0, np.int64))
         elif len(ended):
             final_obs = np.empty(self.num_envs, dtype=object)
             final_infos: list[dict] = [{} for _ in range(self.num_envs)]
             for i in ended:
                 final_obs[i], final_infos[i] = obs[i].copy(), infos[i]
-                obs[i] = self._reset_one(int(i))[0]
+            obs[ended] = self._reset_many(ended, finished)[0]
             out["final_obs"], out["_final_obs"] = final_obs, done.copy()
             out["final_info"], out["_final_info"] = _stack_infos(final_infos, done), done.copy()
         return obs, rewards, terminated, truncated, out
-
-    def _report(self, i: int, info: dict, terminated: bool, truncated: bool) -> dict:
-        """Sub-env i's finished episode, handed to the task source once."""
-        report = episode_report(
-            self._tasks[i],
-            self._returns[i],
-            self.batch.elapsed[i],
-            info.get("success", False),
-            truncated and not terminated,
-            self._initial_obs[i],
-        )
-        if self.task_source is not None:
-            self.task_source.episode_finished(i, report)
-        return report
 
     def close_extras(self, **kwargs):
         self.batch.close()

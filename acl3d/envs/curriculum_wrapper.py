@@ -3,15 +3,14 @@
 * `CurriculumWrapper(env, teacher)`: a Gymnasium wrapper for one env. Each `reset()` without a
   task in its options plays `teacher.sample_task()`; each finished episode is reported with
   `teacher.episodic_update(task, return, success)` before the wrapper returns its last step, and
-  described in `info["curriculum"]` (see `episode_report`).
-* `TaskSource`: the per-sub-env hook of the batched vector env
-  (`acl3d.envs.batched_vector.BatchedVectorEnv(task_source=...)`): `next_task(i)` is asked at
-  sub-env i's reset, `episode_finished(i, report)` at the step its episode ends, so a source
-  always learns an episode's outcome before it chooses that sub-env's next task.
-  `TeacherTaskSource(teacher)` is that hook for any teacher.
+  described in `info["curriculum"]` (see `episode_report`). The episode is summed by the one
+  episode-statistics layer (`acl3d.envs.episode_statistics`), as in every vec env.
+* `TaskQueue` / `CurriculumWorker`: a training worker's side of the curriculum (queued tasks,
+  the episode report), shared by the SB3 workers.
 
 A teacher is any acl3d teacher, or any object with `sample_task()` and
-`episodic_update(task, reward, is_success)`. A task passed in `reset(options={"task": ...})`
+`episodic_update(task, reward, is_success)` (a vector of worlds drives a teacher through
+`acl3d.envs.episode_statistics.TeacherSync`, which needs the batched calls). A task passed in `reset(options={"task": ...})`
 (evaluation, a replay) is played without asking or telling the teacher.
 """
 
@@ -19,13 +18,13 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from typing import Protocol
 
 import gymnasium as gym
 import numpy as np
 
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.envs.episode_statistics import EpisodeStatistics
 
 INFO_KEY = "curriculum"
 
@@ -47,7 +46,7 @@ def episode_report(
 
 
 def check_teacher(teacher) -> None:
-    """ValueError unless `teacher` can propose tasks and learn from episodes."""
+    """ValueError unless `teacher` can propose tasks and learn from episodes one at a time."""
     missing = [
         m for m in ("sample_task", "episodic_update") if not callable(getattr(teacher, m, None))
     ]
@@ -59,30 +58,6 @@ def check_teacher(teacher) -> None:
         )
 
 
-class TaskSource(Protocol):
-    """Chooses each sub-env's task at its reset and hears how each episode went."""
-
-    def next_task(self, index: int):
-        """The task sub-env `index` plays next (a flat vector or a {name: value} dict)."""
-
-    def episode_finished(self, index: int, report: dict) -> None:
-        """Sub-env `index` finished an episode (`report`: see `episode_report`)."""
-
-
-class TeacherTaskSource:
-    """`TaskSource` of one teacher shared by all sub-envs."""
-
-    def __init__(self, teacher):
-        check_teacher(teacher)
-        self.teacher = teacher
-
-    def next_task(self, index: int) -> np.ndarray:
-        return np.asarray(self.teacher.sample_task(), dtype=np.float32)
-
-    def episode_finished(self, index: int, report: dict) -> None:
-        self.teacher.episodic_update(report["task"], report["return"], report["success"])
-
-
 class CurriculumWrapper(gym.Wrapper):
     """One env whose tasks come from `teacher` (see the module docstring)."""
 
@@ -90,11 +65,8 @@ class CurriculumWrapper(gym.Wrapper):
         super().__init__(env)
         check_teacher(teacher)
         self.teacher = teacher
-        self._task: np.ndarray | None = None
+        self.stats: EpisodeStatistics | None = None  # sized at the first reset (the task's length)
         self._from_teacher = False
-        self._return = 0.0
-        self._length = 0
-        self._initial_obs = None
 
     def reset(self, *, seed=None, options=None):
         if options is not None and not isinstance(options, dict):
@@ -104,27 +76,27 @@ class CurriculumWrapper(gym.Wrapper):
         if from_teacher:
             options["task"] = np.asarray(self.teacher.sample_task(), dtype=np.float32)
         obs, info = self.env.reset(seed=seed, options=options)
-        self._task, self._from_teacher = played_task(self.env, options["task"]), from_teacher
-        self._return, self._length = 0.0, 0
-        self._initial_obs = np.array(obs, copy=True)
+        task = played_task(self.env, options["task"])
+        if self.stats is None or self.stats.task_dim != len(task):
+            self.stats = EpisodeStatistics(1, len(task))
+        self.stats.begin(np.zeros(1, np.int64), task[None], np.asarray(obs)[None])
+        self._from_teacher = from_teacher
         return obs, info
 
     def step(self, action):
-        if self._task is None:
+        if self.stats is None:
             raise RuntimeError("CurriculumWrapper.step() before reset()")
         obs, reward, terminated, truncated, info = self.env.step(action)
-        self._return += float(reward)
-        self._length += 1
+        self.stats.step(
+            np.array([reward], np.float64), np.array([terminated]), np.array([truncated]),
+            np.array([info.get("success", False)]),
+        )  # fmt: skip
         if terminated or truncated:
-            report = episode_report(
-                self._task,
-                self._return,
-                self._length,
-                info.get("success", False),
-                truncated and not terminated,
-                self._initial_obs,
-            )
-            info[INFO_KEY] = report
+            ep = self.stats.pop()
+            info[INFO_KEY] = report = episode_report(
+                ep.tasks[0], ep.returns[0], ep.lengths[0], ep.successes[0], ep.truncated[0],
+                ep.initial_obs[0].reshape(np.shape(obs)),
+            )  # fmt: skip
             if self._from_teacher:
                 self.teacher.episodic_update(report["task"], report["return"], report["success"])
         return obs, reward, terminated, truncated, info

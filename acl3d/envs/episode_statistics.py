@@ -107,8 +107,8 @@ class TeacherSync:
         if len(finished):
             f = finished.numpy()
             self.teacher.update_batch(f.tasks, f.returns, f.successes)
-        n = len(env_ids)
-        return np.asarray(self.teacher.sample_tasks(n), dtype=np.float32).reshape(n, -1)
+        tasks = np.asarray(self.teacher.sample_tasks(len(env_ids)), dtype=np.float32)
+        return tasks.reshape(len(env_ids), tasks.shape[-1] if tasks.ndim else 0)
 
 
 class EpisodeStatistics:
@@ -159,6 +159,8 @@ class EpisodeStatistics:
             self._restart(mask)
             return
         ids = xp.indices(env_ids, n)
+        if ids.shape[0] == 0:
+            return
         tasks = xp.asarray(tasks, "float32").reshape(-1, self.task_dim)
         if tasks.shape[0] != ids.shape[0]:
             raise validation.fail("tasks", tuple(tasks.shape), f"({ids.shape[0]}, {self.task_dim})")

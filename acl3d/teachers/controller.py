@@ -144,17 +144,23 @@ class TeacherController:
 
     def sample_training_task(self) -> tuple[np.ndarray, bool]:
         """The next training task (float32, environment space) and whether its episode is
-        exploratory: a new or edited level on which Robust PLR / ACCEL do not update the
-        student. Decided now, in the teacher's space (a shuffled float32 task does not map back
-        exactly), because the teacher forgets the proposal once its episode is reported."""
-        teacher_task = self.teacher.sample_task()
-        exploratory = self.marks_exploratory and self.teacher.is_exploratory(teacher_task)
-        task = teacher_task
-        if self.shuffler is not None:
-            task = self.shuffler.forward(task)
-        task = np.asarray(task, dtype=np.float32)
-        self._records["sampled_tasks"].append(task)
-        return task, exploratory
+        exploratory (see `sample_training_tasks`)."""
+        tasks, exploratory = self.sample_training_tasks(1)
+        return tasks[0], bool(exploratory[0])
+
+    def sample_training_tasks(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`n` training tasks ((n, d) float32, environment space; one teacher call) and whether
+        each episode is exploratory: a new or edited level on which Robust PLR / ACCEL do not
+        update the student. Decided now, in the teacher's space (a shuffled float32 task does
+        not map back exactly), because the teacher forgets the proposal once it is reported."""
+        teacher_tasks = self.teacher.sample_tasks(n)
+        exploratory = np.zeros(len(teacher_tasks), dtype=bool)
+        if self.marks_exploratory:
+            exploratory[:] = [self.teacher.is_exploratory(t) for t in teacher_tasks]
+        tasks = teacher_tasks if self.shuffler is None else self.shuffler.forward(teacher_tasks)
+        tasks = np.asarray(tasks, dtype=np.float32).reshape(len(teacher_tasks), self.task_space.dim)
+        self._records["sampled_tasks"].extend(tasks)
+        return tasks, exploratory
 
     def record_step(self, state, action, reward, next_state, done, worker: int = 0) -> None:
         """One environment step, for teachers whose `needs` include "step_rewards".
@@ -167,6 +173,22 @@ class TeacherController:
 
     def record_episode(self, env_task, episode_return, length, success, initial_obs=None) -> None:
         """A finished training episode on `env_task` (as returned by `sample_task`)."""
+        self._learn([self._checked(env_task, episode_return, length, success, initial_obs)])
+
+    def record_episodes(self, finished) -> None:
+        """Finished training episodes, oldest first (an `EpisodeBatch`, numpy arrays): the
+        teacher learns them in one `update_batch` call. All are checked before any is recorded."""
+        obs = finished.initial_obs
+        self._learn(
+            [
+                self._checked(*row, None if obs is None else obs[k])
+                for k, row in enumerate(
+                    zip(finished.tasks, finished.returns, finished.lengths, finished.successes)
+                )
+            ]
+        )
+
+    def _checked(self, env_task, episode_return, length, success, initial_obs) -> tuple:
         env_task = self._check_env_task(env_task)
         ret = validation.real("episode_return", episode_return)
         length = _length(length)
@@ -175,16 +197,30 @@ class TeacherController:
             initial_obs = np.asarray(initial_obs, dtype=np.float32)
             if not np.all(np.isfinite(initial_obs)):
                 raise ValueError("initial_obs: contains non-finite values")
-        task = self.shuffler.inverse(env_task) if self.shuffler is not None else env_task
-        reward = self.scale(ret) if self.scale_reward else ret
-        if initial_obs is not None:
-            self.teacher.record_initial_state(task, initial_obs)
-        self.teacher.episodic_update(task, reward, success)
+        return env_task, ret, length, success, initial_obs
+
+    def _learn(self, episodes: list[tuple]) -> None:
+        """Checked episodes to the teacher (in teacher space, scaled) and to the records."""
+        if not episodes:
+            return
+        env_tasks = np.stack([e[0] for e in episodes])
+        tasks = self.shuffler.inverse(env_tasks) if self.shuffler is not None else env_tasks
+        rewards = [self.scale(e[1]) if self.scale_reward else e[1] for e in episodes]
+        successes = np.array([e[3] for e in episodes], dtype=bool)
+        # one episode (`record_episode`) goes through the teacher's one-episode API; SPDL gets
+        # each episode's first state right before it
+        if len(episodes) == 1 or "initial_states" in self.needs:
+            for task, reward, e in zip(tasks, rewards, episodes):
+                if e[4] is not None:
+                    self.teacher.record_initial_state(task, e[4])
+                self.teacher.episodic_update(task, reward, e[3])
+        else:
+            self.teacher.update_batch(tasks, rewards, successes)
         r = self._records
-        r["train_tasks"].append(env_task.astype(np.float32))
-        r["train_returns"].append(ret)
-        r["train_lengths"].append(length)
-        r["train_success"].append(success)
+        r["train_tasks"].extend(env_tasks.astype(np.float32))
+        r["train_returns"].extend(e[1] for e in episodes)
+        r["train_lengths"].extend(e[2] for e in episodes)
+        r["train_success"].extend(successes.tolist())
 
     def maybe_sample_periodically(self, total_steps: int) -> np.ndarray | None:
         """Every `keep_periodical_task_samples` steps, keep 100 non-exploratory task samples

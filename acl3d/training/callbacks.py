@@ -90,26 +90,27 @@ class EpisodeLogCallback(BaseCallback):
         """Log the episodes finished since the last call."""
         curriculum = self.session.curriculum_env
         finished = curriculum.pop_finished()
-        if not finished:
+        if finished is None:
             return
         self.csv.write_rows(
             [
-                ep.total_steps,
-                ep.worker,
-                f"{ep.episode_return:.6g}",
-                ep.length,
-                int(ep.success),
-                int(ep.truncated),
-                *(f"{v:.6g}" for v in ep.task),
+                int(step),
+                int(worker),
+                f"{ret:.6g}",
+                int(length),
+                int(success),
+                int(truncated),
+                *(f"{v:.6g}" for v in task),
             ]
-            for ep in finished
-        )
-        tasks = np.stack([ep.task for ep in finished])
-        for name, value in zip(self.task_names, tasks.mean(axis=0)):
+            for step, worker, ret, length, success, truncated, task in zip(
+                finished.total_steps, finished.env_ids, finished.returns, finished.lengths,
+                finished.successes, finished.truncated, finished.tasks,
+            )
+        )  # fmt: skip
+        for name, value in zip(self.task_names, finished.tasks.mean(axis=0)):
             self.logger.record(f"curriculum/mean_task/{name}", float(value))
-        returns = [e.episode_return for e in finished]
-        self.logger.record("curriculum/episode_return", float(np.mean(returns)))
-        self.logger.record("curriculum/success_rate", float(np.mean([e.success for e in finished])))
+        self.logger.record("curriculum/episode_return", float(finished.returns.mean()))
+        self.logger.record("curriculum/success_rate", float(finished.successes.mean()))
         self.logger.record("curriculum/episodes", curriculum.episodes_done)
         for key, value in self.teacher_scalars().items():
             self.logger.record(f"curriculum/teacher/{key}", value)

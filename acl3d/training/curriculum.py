@@ -1,30 +1,36 @@
 """Curriculum sync between a teacher in the main process and environments in worker processes.
 
 SB3 vector envs reset finished episodes inside `step()` with no options, so a task pushed after
-the fact would arrive one episode late. Instead each worker env *pulls* its next task at reset
-from a small queue that the main process keeps filled (Syllabus' pattern):
+the fact would arrive one episode late. Two ways keep the teacher ahead, both through the one
+verb of `acl3d.envs.episode_statistics.CurriculumSync` (`CurriculumVecEnv.sync`: learn from the
+finished episodes, return the next tasks), so data flow one way: teacher -> tasks -> worlds ->
+episode results -> teacher.
 
-* `CurriculumEnv` (worker side) plays the task at the head of its queue at every reset that
-  does not name a task itself, and reports the finished episode (task actually played, return,
-  length, success, initial observation, truncation) in the last step's `info["curriculum"]`.
-* `CurriculumVecEnv` (main side) pushes one prefetched task per worker before the first reset
-  and one more right after each finished episode, before the next `step_async`, so the step loop
-  never waits for the teacher; it hands every finished episode to the teacher exactly once.
+* In-process batched env (`acl3d.vec.batched_sb3.BatchedVecEnv`): it sums episodes with its
+  `EpisodeStatistics` and calls `sync` during the step that ends them, before the sub-envs
+  reset, so the teacher knows an episode's outcome before it samples that sub-env's next task.
+* Worker processes (`CurriculumEnv` in each): each worker plays the task at the head of its
+  queue at every reset that names none, sums its episode with an `EpisodeStatistics` of one and
+  reports it (task played, return, length, success, initial observation, truncation) in the
+  last step's `info["curriculum"]`; the main side hands the step's reports to `sync` and pushes
+  the tasks it returns, one ahead, before the next `step_async`. With one task of prefetch the
+  teacher learns episode k of a worker before it samples that worker's task k + 2. A teacher
+  that learns from every step ("step_rewards": SPDL) is driven this way on any vec env, so
+  its step records precede the episode they end.
 
-With one task of prefetch, the teacher learns the outcome of a worker's episode k before it
-samples that worker's task k + 2. Errors raised inside a worker env are caught and carried back
-with their traceback, so a crash stops training with a readable message on both vec env types.
-
-Exploratory levels (Robust PLR / ACCEL's new or edited ones, on which the student must not
-learn) are flagged when their task is sampled; the flag follows the task through the queue and
-`step_exploratory` tells, for each stepped transition, whether its episode is exploratory.
+Errors raised inside a worker env are caught and carried back with their traceback, so a crash
+stops training with a readable message on both vec env types. Exploratory levels (Robust PLR /
+ACCEL's new or edited ones, on which the student must not learn) are flagged when their task is
+sampled; the flag follows the task and `step_exploratory` tells, for each stepped transition,
+whether its episode is exploratory.
 """
 
 from __future__ import annotations
 
 import traceback
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import replace
+from typing import Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -38,6 +44,8 @@ from acl3d.envs.curriculum_wrapper import (
     success_return,
 )
 from acl3d.envs.env_state import restore_wrappers
+from acl3d.envs.episode_statistics import EpisodeBatch, EpisodeStatistics
+from acl3d.vec.batched_sb3 import BatchedVecEnv
 
 ERROR_KEY = "acl3d_worker_error"
 
@@ -46,18 +54,19 @@ class WorkerError(RuntimeError):
     """An environment raised inside a worker; the message carries the worker's traceback."""
 
 
-@dataclass
-class Episode:
-    """One finished training episode as the teacher received it."""
+class Controller(Protocol):
+    """What `CurriculumVecEnv` needs of the curriculum (`TeacherController` has it)."""
 
-    worker: int
-    task: np.ndarray
-    episode_return: float
-    length: int
-    success: bool
-    truncated: bool
-    initial_obs: np.ndarray
-    total_steps: int
+    needs: frozenset[str]
+
+    def sample_training_tasks(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(n, d) float32 tasks and their (n,) exploratory flags."""
+
+    def record_episodes(self, finished: EpisodeBatch) -> None: ...
+
+    def record_step(self, state, action, reward, next_state, done, worker: int = 0) -> None: ...
+
+    def maybe_sample_periodically(self, total_steps: int): ...
 
 
 class CurriculumEnv(gym.Wrapper, CurriculumWorker):
@@ -72,8 +81,7 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
     def __init__(self, env: gym.Env):
         super().__init__(env)
         self.queue = TaskQueue(success_return(env))
-        self._return = 0.0
-        self._length = 0
+        self.stats: EpisodeStatistics | None = None  # sized at the first reset (task length)
         self._last_obs = None
         self._error: str | None = None
 
@@ -86,8 +94,9 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
         except Exception:
             self._error = traceback.format_exc()
             return self._placeholder_obs(), {ERROR_KEY: self._error}
-        self.queue.begin(played_task(self.env, options["task"]), obs)
-        self._return, self._length = 0.0, 0
+        task = played_task(self.env, options["task"])
+        self.queue.begin(task, obs)
+        self._begin(task, 0.0, 0)
         self._last_obs = self.queue.initial_obs
         return obs, info
 
@@ -99,12 +108,22 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
         except Exception:
             self._error = traceback.format_exc()
             return self._placeholder_obs(), 0.0, True, False, {ERROR_KEY: self._error}
-        self._return += float(reward)
-        self._length += 1
         self._last_obs = obs
+        self.stats.step(
+            np.array([reward], np.float64), np.array([terminated]), np.array([truncated])
+        )
         if terminated or truncated:
-            self.queue.report(info, self._return, self._length, terminated, truncated)
+            ep = self.stats.pop()
+            self.queue.report(info, float(ep.returns[0]), int(ep.lengths[0]), terminated, truncated)
         return obs, reward, terminated, truncated, info
+
+    def _begin(self, task, episode_return: float, length: int) -> None:
+        """The running episode: on `task`, with this return and length so far."""
+        task = np.asarray(task, dtype=np.float32).reshape(1, -1)
+        if self.stats is None or self.stats.task_dim != task.shape[1]:
+            self.stats = EpisodeStatistics(1, task.shape[1])
+        self.stats.begin(np.zeros(1, np.int64), task)
+        self.stats.returns[0], self.stats.lengths[0] = episode_return, length
 
     def get_state(self) -> dict:
         """Queue, running episode and the env's own `get_state()`: what a checkpoint needs to
@@ -113,9 +132,10 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
         an env without `get_state()` (its episode then cannot be continued)."""
         inner = self.env.unwrapped
         size = len(self.queue.tasks[0]) if self.queue.tasks else 0
+        running = self.stats is not None
         return self.queue.get_state(
-            self._return,
-            self._length,
+            float(self.stats.returns[0]) if running else 0.0,
+            int(self.stats.lengths[0]) if running else 0,
             self._last_obs,
             inner.get_state() if hasattr(inner, "get_state") else None,
             size,
@@ -127,7 +147,8 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
             self.env.unwrapped.set_state(state["env"])
             restore_wrappers(self.env, int(state["length"]))
         self.queue.set_state(state)
-        self._return, self._length = float(state["return"]), int(state["length"])
+        if state["task"] is not None:
+            self._begin(state["task"], float(state["return"]), int(state["length"]))
         self._last_obs = state["last_obs"]
         self._error = None
 
@@ -144,21 +165,16 @@ def raise_worker_errors(infos, where: str) -> None:
 
 
 class CurriculumVecEnv(VecEnvWrapper):
-    """Main-side wrapper: keeps every worker's task queue one task ahead and feeds the teacher.
+    """Main-side wrapper: the run's `CurriculumSync`, keeping every worker one task ahead.
 
-    `controller` is an `acl3d.teachers.controller.TeacherController` (anything with
-    `sample_task`, `record_episode`, `needs` and optionally `record_step` /
-    `maybe_sample_periodically`, `sample_training_task`). It must sit directly on the worker
-    `VecEnv` (below any VecNormalize) so that it sees raw observations and rewards.
-
-    On an in-process batched env (`acl3d.vec.batched_sb3.BatchedVecEnv`, which has a
-    `task_source`) nothing is queued: each sub-env pulls its next task from `next_task` at its
-    own reset, after this wrapper was handed the step's finished episodes
-    (`episodes_finished`), so the teacher always knows an episode's outcome before it samples
-    that sub-env's next task.
+    `controller` is a `Controller` (`acl3d.teachers.controller.TeacherController`). It must sit
+    directly on the worker `VecEnv` (below any VecNormalize) so that it sees raw observations
+    and rewards. On an in-process `BatchedVecEnv` (and a teacher without "step_rewards") the
+    batched env calls `sync` itself and nothing is queued; otherwise tasks are pushed to the
+    workers' queues (module docstring).
     """
 
-    def __init__(self, venv: VecEnv, controller, total_steps: int = 0):
+    def __init__(self, venv: VecEnv, controller: Controller, total_steps: int = 0):
         super().__init__(venv)
         self.controller = controller
         self.total_steps = int(total_steps)
@@ -168,25 +184,31 @@ class CurriculumVecEnv(VecEnvWrapper):
         self._running_exploratory = np.zeros(self.num_envs, dtype=bool)
         self._queued_exploratory: list[deque[bool]] = [deque() for _ in range(self.num_envs)]
         self._step_exploratory = np.zeros(self.num_envs, dtype=bool)
-        self._finished: list[Episode] = []
+        self._finished: list[EpisodeBatch] = []
         self._last_obs = None
         self._actions = None
-        needs = set(getattr(controller, "needs", ()))
-        self._record_steps = "step_rewards" in needs
-        self._pull = hasattr(venv, "task_source")
+        self._record_steps = "step_rewards" in controller.needs
+        self._pull = isinstance(venv, BatchedVecEnv) and not self._record_steps
         if self._pull:
-            venv.task_source = self
+            venv.curriculum_sync = self
 
-    def next_task(self, index: int) -> np.ndarray:
-        """The teacher's next task for sub-env `index` (pulled at its reset)."""
-        task, self._running_exploratory[index] = self._sample()
-        return task
+    # -------------------------------------------------------------- the one curriculum verb
+    def sync(self, finished: EpisodeBatch, env_ids) -> np.ndarray:
+        """`CurriculumSync`: the teacher learns `finished`, then samples one task per env of
+        `env_ids` (in one call each); pulling envs start them now (their exploratory flags)."""
+        tasks, exploratory = self._sync(finished, len(env_ids))
+        self._running_exploratory[np.asarray(env_ids, dtype=np.int64)] = exploratory
+        return tasks
 
-    def _sample(self) -> tuple[np.ndarray, bool]:
-        """(task, exploratory); a controller without `sample_training_task` marks no level."""
-        sample = getattr(self.controller, "sample_training_task", None)
-        task, exploratory = sample() if sample else (self.controller.sample_task(), False)
-        return np.asarray(task, dtype=np.float32), bool(exploratory)
+    def _sync(self, finished: EpisodeBatch, n: int) -> tuple[np.ndarray, np.ndarray]:
+        if len(finished):
+            finished = replace(
+                finished.numpy(), total_steps=np.full(len(finished), self.total_steps)
+            )
+            self.controller.record_episodes(finished)
+            self.episodes_done += len(finished)
+            self._finished.append(finished)
+        return self.controller.sample_training_tasks(n)
 
     @property
     def step_exploratory(self) -> np.ndarray:
@@ -197,11 +219,13 @@ class CurriculumVecEnv(VecEnvWrapper):
         return flags
 
     # -------------------------------------------------------------- queue management
-    def _push(self, index: int) -> None:
-        task, exploratory = self._sample()
-        self.venv.env_method("push_task", task, indices=[index])
-        self._queued_exploratory[index].append(exploratory)
-        self._pending[index] += 1
+    def _push(self, ids, finished: EpisodeBatch) -> None:
+        """Learn `finished`, then queue one new task on each worker of `ids`."""
+        tasks, exploratory = self._sync(finished, len(ids))
+        for i, task, flag in zip(ids, tasks, exploratory):
+            self.venv.env_method("push_task", task, indices=[int(i)])
+            self._queued_exploratory[int(i)].append(bool(flag))
+            self._pending[int(i)] += 1
 
     def _start_queued(self, index: int) -> None:
         """Worker `index` began an episode on the head of its queue."""
@@ -212,20 +236,20 @@ class CurriculumVecEnv(VecEnvWrapper):
         if self._pull:
             self._last_obs = self.venv.reset()
             return self._last_obs
-        for i in range(self.num_envs):
-            if self._pending[i] == 0:
-                self._push(i)
+        empty = EpisodeBatch.empty(0)
+        self._push(np.flatnonzero(self._pending == 0), empty)
         obs = self.venv.reset()
-        raise_worker_errors(getattr(self.venv, "reset_infos", []), "reset")
+        raise_worker_errors(self.venv.reset_infos, "reset")
         for i in range(self.num_envs):
             self._start_queued(i)  # every worker consumed one queued task
-            self._push(i)
+        self._push(np.arange(self.num_envs), empty)
         self._last_obs = obs
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
         self._step_exploratory = self._running_exploratory.copy()
+        self.total_steps += self.num_envs  # this step's episodes end at this count
         self.venv.step_async(actions)
 
     def step_wait(self):
@@ -236,52 +260,25 @@ class CurriculumVecEnv(VecEnvWrapper):
             raise WorkerError(f"an environment worker process died (exit codes {codes})") from exc
         if not self._pull:
             raise_worker_errors(infos, "step")
-            self.episodes_finished(obs, rewards, dones, infos)
+            self._record_step(obs, rewards, dones, infos)
+            ended = np.flatnonzero(dones)
+            for i in ended:
+                self._start_queued(int(i))  # the auto-reset consumed the prefetched task
+            self._push(ended, _reported(ended, infos))
+        self.controller.maybe_sample_periodically(self.total_steps)
         self._last_obs = obs
         return obs, rewards, dones, infos
 
-    def episodes_finished(self, obs, rewards, dones, infos) -> None:
-        """A step's book-keeping: step records, finished episodes to the teacher, and (pushing
-        mode) the next task into each finished worker's queue; `obs` before any auto-reset."""
-        self.total_steps += self.num_envs
-        if self._record_steps:
-            for i in range(self.num_envs):
-                next_obs = infos[i]["terminal_observation"] if dones[i] else obs[i]
-                self.controller.record_step(
-                    self._last_obs[i],
-                    self._actions[i],
-                    float(rewards[i]),
-                    next_obs,
-                    bool(dones[i]),
-                    worker=i,
-                )
-        for i in np.flatnonzero(dones):
-            self._report(int(i), infos[i])
-            if not self._pull:
-                self._start_queued(int(i))  # the auto-reset consumed the prefetched task
-                self._push(int(i))
-        maybe_sample = getattr(self.controller, "maybe_sample_periodically", None)
-        if maybe_sample is not None:
-            maybe_sample(self.total_steps)
-
-    def _report(self, worker: int, info: dict) -> None:
-        ep = info[INFO_KEY]
-        self.controller.record_episode(
-            ep["task"], ep["return"], ep["length"], ep["success"], initial_obs=ep["initial_obs"]
-        )
-        self.episodes_done += 1
-        self._finished.append(
-            Episode(
-                worker=worker,
-                task=np.asarray(ep["task"], dtype=np.float32),
-                episode_return=float(ep["return"]),
-                length=int(ep["length"]),
-                success=bool(ep["success"]),
-                truncated=bool(ep["truncated"]),
-                initial_obs=ep["initial_obs"],
-                total_steps=self.total_steps,
-            )
-        )
+    def _record_step(self, obs, rewards, dones, infos) -> None:
+        """Every env's step to a teacher that learns from steps (before the episodes end)."""
+        if not self._record_steps:
+            return
+        for i in range(self.num_envs):
+            next_obs = infos[i]["terminal_observation"] if dones[i] else obs[i]
+            self.controller.record_step(
+                self._last_obs[i], self._actions[i], float(rewards[i]), next_obs, bool(dones[i]),
+                worker=i,
+            )  # fmt: skip
 
     def get_state(self) -> dict:
         """Counters, prefetch book-keeping and every worker's `get_state()` (for checkpoints;
@@ -308,16 +305,39 @@ class CurriculumVecEnv(VecEnvWrapper):
         self.total_steps = int(state["total_steps"])
         self.episodes_done = int(state["episodes_done"])
         self._pending = np.asarray(state["pending"], dtype=np.int64).copy()
-        # checkpoints written before exploratory levels were tracked flag none
-        self._running_exploratory = np.asarray(
-            state.get("running_exploratory", np.zeros(self.num_envs)), dtype=bool
-        ).copy()
-        queued = state.get("queued_exploratory") or [[False] * int(n) for n in self._pending]
-        self._queued_exploratory = [deque(bool(f) for f in q) for q in queued]
+        self._running_exploratory = np.asarray(state["running_exploratory"], dtype=bool).copy()
+        self._queued_exploratory = [deque(bool(f) for f in q) for q in state["queued_exploratory"]]
         self._last_obs = state["last_obs"]
         self._finished = []
 
-    def pop_finished(self) -> list[Episode]:
-        """Episodes finished since the last call (for logging), oldest first."""
-        out, self._finished = self._finished, []
-        return out
+    def pop_finished(self) -> EpisodeBatch | None:
+        """Episodes finished since the last call (for logging), oldest first, as one numpy
+        `EpisodeBatch` (`env_ids`: the workers; `total_steps`: the run's steps at the end of
+        each); None if there were none."""
+        batches, self._finished = self._finished, []
+        if not batches:
+            return None
+        return EpisodeBatch(
+            *(np.concatenate([getattr(b, f) for b in batches]) for f in _LOGGED),
+            initial_obs=None,
+        )
+
+
+_LOGGED = ("env_ids", "tasks", "returns", "lengths", "successes", "truncated", "total_steps")
+
+
+def _reported(ended: np.ndarray, infos) -> EpisodeBatch:
+    """The workers' reports of the episodes that ended (`info["curriculum"]`) as one batch."""
+    reports = [infos[i][INFO_KEY] for i in ended]
+    if not reports:
+        return EpisodeBatch.empty(0)
+    return EpisodeBatch(
+        env_ids=ended.astype(np.int64),
+        tasks=np.stack([r["task"] for r in reports]),
+        returns=np.array([r["return"] for r in reports], dtype=np.float64),
+        lengths=np.array([r["length"] for r in reports], dtype=np.int64),
+        successes=np.array([r["success"] for r in reports], dtype=bool),
+        truncated=np.array([r["truncated"] for r in reports], dtype=bool),
+        total_steps=np.zeros(len(reports), dtype=np.int64),
+        initial_obs=np.stack([np.asarray(r["initial_obs"], np.float32) for r in reports]),
+    )

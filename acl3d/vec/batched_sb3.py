@@ -7,10 +7,11 @@ one `SubEnv` per sub-env, which offers the `CurriculumEnv` worker API (`push_tas
 `queued_tasks`, `clear_tasks`, `get_state`/`set_state`) and otherwise hands attributes and
 methods to its single env.
 
-Curriculum: a reset that names no task (`set_options`) plays the sub-env's next queued task;
-with `task_source` set (an object with `next_task(i)` and `episodes_finished(obs, rewards,
-dones, infos)`, see `acl3d.training.curriculum.CurriculumVecEnv`), an empty queue pulls the
-next task from it at the sub-env's own reset, after it was handed the step's finished episodes.
+Curriculum: episodes are summed by one `acl3d.envs.episode_statistics.EpisodeStatistics`. A
+reset that names no task (`set_options`) plays the sub-env's next queued task; with
+`curriculum_sync` set (a `CurriculumSync`, e.g. `acl3d.training.curriculum.CurriculumVecEnv`),
+every step that ends episodes hands them to `curriculum_sync.sync(finished, env_ids)` once,
+which returns the next task of each finished sub-env with an empty queue, before it resets.
 With `curriculum=True` and neither, a reset fails loudly; finished episodes are reported in
 `infos[i]["curriculum"]` and `infos[i]["episode"]` as `CurriculumEnv` does.
 """
@@ -21,6 +22,7 @@ import numpy as np
 
 from acl3d.envs.batched import BatchedEnvs
 from acl3d.envs.curriculum_wrapper import CurriculumWorker, TaskQueue, played_task
+from acl3d.envs.episode_statistics import EpisodeBatch, EpisodeStatistics
 from acl3d.extras import optional_dependency
 
 with optional_dependency("the batched env's Stable-Baselines3 VecEnv"):
@@ -43,7 +45,7 @@ class SubEnv(CurriculumWorker):
         self._owner.batch.sync(self._index)
         return self.queue.get_state(
             self.episode_return,
-            int(self._owner.batch.elapsed[self._index]),
+            int(self._owner.stats.lengths[self._index]),
             self.last_obs,
             self.env.get_state(),
             len(self.env.task_vector),
@@ -54,8 +56,10 @@ class SubEnv(CurriculumWorker):
         batch = self._owner.batch
         batch.restored(self._index)
         self.queue.set_state(state)
-        self._owner.returns[self._index] = float(state["return"])
-        batch.elapsed[self._index] = int(state["length"])
+        stats, i = self._owner.stats, self._index
+        stats.tasks[i] = self.env.task_vector if state["task"] is None else state["task"]
+        stats.returns[i], stats.lengths[i] = float(state["return"]), int(state["length"])
+        batch.elapsed[i] = int(state["length"])
         if state["last_obs"] is not None:
             if self._owner.last_obs is None:
                 owner = self._owner
@@ -66,7 +70,7 @@ class SubEnv(CurriculumWorker):
 
     @property
     def episode_return(self) -> float:
-        return float(self._owner.returns[self._index])
+        return float(self._owner.stats.returns[self._index])
 
     @property
     def last_obs(self):
@@ -81,22 +85,17 @@ class SubEnv(CurriculumWorker):
         return getattr(self.env, name)
 
     def reset(self, seed=None, options=None):
-        """Start an episode: the task from `options`, else the queue, else the task source."""
+        """Start an episode: the task from `options`, else the queue (filled by the owner's
+        `curriculum_sync` where it has one)."""
         owner = self._owner
         options = dict(options or {})
-        if "task" not in options and not self.queue.tasks and owner.task_source is not None:
-            options["task"] = np.asarray(owner.task_source.next_task(self._index), np.float32)
         if "task" in options or self.queue.tasks or owner.curriculum:
             options = self.queue.options(options)
         obs, info = owner.batch.reset_one(self._index, seed, options)
-        self.queue.begin(played_task(self.env, options.get("task", self.env.task_vector)), obs)
-        owner.returns[self._index] = 0.0
+        task = played_task(self.env, options.get("task", self.env.task_vector))
+        self.queue.begin(task, obs)
+        owner.stats.begin(np.array([self._index]), np.asarray(task)[None], np.asarray(obs)[None])
         return obs, info
-
-    def episode_report(self, info: dict, terminated: bool, truncated: bool) -> None:
-        """Add the finished episode to its last step's info, as `CurriculumEnv` does."""
-        length = int(self._owner.batch.elapsed[self._index])
-        self.queue.report(info, self.episode_return, length, terminated, truncated)
 
 
 class BatchedVecEnv(VecEnv):
@@ -104,7 +103,7 @@ class BatchedVecEnv(VecEnv):
 
     Args:
         env_id, num_envs, threads, max_episode_steps, **env_kwargs: as `BatchedEnvs`.
-        curriculum: every reset needs a task (queued, pulled from `task_source`, or in the
+        curriculum: every reset needs a task (queued, from `curriculum_sync`, or in the
             reset options), as behind `CurriculumEnv`; False plays the env's current task.
     """
 
@@ -118,24 +117,40 @@ class BatchedVecEnv(VecEnv):
         **env_kwargs,
     ):
         self.batch = BatchedEnvs(env_id, num_envs, threads, max_episode_steps, **env_kwargs)
-        self.returns = np.zeros(self.batch.num_envs)  # of the running episodes
+        self.stats = EpisodeStatistics(self.batch.num_envs, self.batch.task_space.dim)
         self.last_obs = None  # the latest observations, (N, obs)
         self.subenvs = [SubEnv(self, i) for i in range(self.batch.num_envs)]
         super().__init__(
             self.batch.num_envs, self.batch.single_observation_space, self.batch.single_action_space
         )
         self.curriculum = bool(curriculum)
-        self.task_source = None
+        self.curriculum_sync = None  # a CurriculumSync, set by the one that drives the curriculum
         self._actions = None
 
     def reset(self):
         seeds, options = self.batch.seeds(self._seeds), self._options
+        self._pull(np.arange(self.num_envs), EpisodeBatch.empty(self.batch.task_space.dim), options)
         results = [s.reset(seeds[i], options[i]) for i, s in enumerate(self.subenvs)]
         self._reset_seeds()
         self._reset_options()
         self.reset_infos = [info for _, info in results]
         self.last_obs = np.stack([obs for obs, _ in results])
         return self.last_obs.copy()
+
+    def _pull(self, ids, finished: EpisodeBatch, options=None) -> None:
+        """Hand `finished` to the curriculum sync and queue the tasks it returns for the
+        sub-envs of `ids` that will reset without a task (no queued one, none in options)."""
+        if self.curriculum_sync is None:
+            return
+        subenvs = self.subenvs
+        pull = [
+            i for i in ids
+            if not subenvs[i].queue.tasks and not (options and "task" in (options[i] or {}))
+        ]  # fmt: skip
+        if pull or len(finished):
+            tasks = self.curriculum_sync.sync(finished, np.asarray(pull, dtype=np.int64))
+            for i, task in zip(pull, tasks):
+                subenvs[i].queue.push(task)
 
     def step_async(self, actions) -> None:
         self._actions = self.batch.check_actions(actions)
@@ -145,17 +160,20 @@ class BatchedVecEnv(VecEnv):
             raise RuntimeError("step_wait() without step_async()")
         actions, self._actions = self._actions, None
         obs, rewards, terminated, truncated, infos = self.batch.step(actions)
-        dones = terminated | truncated
+        success = np.fromiter((info.get("success", False) for info in infos), bool, self.num_envs)
+        dones = self.stats.step(rewards, terminated, truncated, success)
+        finished = self.stats.pop()
         subenvs = self.subenvs
-        self.returns += rewards
-        for i in dones.nonzero()[0]:
+        for k, i in enumerate(finished.env_ids):
             info = infos[i]
-            info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+            info["TimeLimit.truncated"] = bool(finished.truncated[k])
             info["terminal_observation"] = obs[i].copy()
-            subenvs[i].episode_report(info, bool(terminated[i]), bool(truncated[i]))
-        if self.task_source is not None:
-            self.task_source.episodes_finished(obs, rewards, dones, infos)
-        for i in dones.nonzero()[0]:
+            subenvs[i].queue.report(
+                info, float(finished.returns[k]), int(finished.lengths[k]),
+                bool(terminated[i]), bool(truncated[i]),
+            )  # fmt: skip
+        self._pull(finished.env_ids, finished)
+        for i in finished.env_ids:
             obs[i] = subenvs[i].reset()[0]
         self.last_obs = obs.copy()
         return obs, rewards.astype(np.float32), dones, infos

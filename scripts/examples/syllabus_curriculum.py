@@ -5,9 +5,9 @@
 Needs `pip install "acl3d[syllabus]"` (syllabus-rl 0.7; `[train]` alone does not have it).
 
 Syllabus describes a continuous task space with `BoxTaskSpace(gym.spaces.Box)`: acl3d's
-`task_space.gym_space` is that Box. `SyllabusTaskSource` is the batched env's per-sub-env task
-hook: `curriculum.sample()` at each sub-env's reset, `curriculum.update_on_episode(...)` when its
-episode ends (before its next task is drawn). Any Syllabus `Curriculum` over a Box fits; this
+`task_space.gym_space` is that Box. `SyllabusSync` is the batched env's curriculum sync (one
+verb, `sync(finished, env_ids)`): `curriculum.update_on_episode(...)` for each finished
+episode, then `curriculum.sample()` for the sub-envs that reset (after their episodes were told). Any Syllabus `Curriculum` over a Box fits; this
 example uses `DomainRandomization` (uniform tasks) and random actions, and prints what was played.
 No Syllabus multiprocessing wrappers are needed: everything runs in this process.
 """
@@ -35,20 +35,22 @@ def domain_randomization(task_space, seed: int = 0) -> DomainRandomization:
     return DomainRandomization(box)
 
 
-class SyllabusTaskSource:
-    """The batched env's task hook backed by a Syllabus `Curriculum`."""
+class SyllabusSync:
+    """The batched env's `CurriculumSync` backed by a Syllabus `Curriculum`."""
 
     def __init__(self, curriculum):
         self.curriculum = curriculum
 
-    def next_task(self, index: int) -> np.ndarray:
-        (task,) = self.curriculum.sample(k=1)
-        return np.asarray(self.curriculum.task_space.decode(task), dtype=np.float32)
-
-    def episode_finished(self, index: int, report: dict) -> None:
-        self.curriculum.update_on_episode(
-            report["return"], report["length"], report["task"], float(report["success"]), index
-        )
+    def sync(self, finished, env_ids) -> np.ndarray:
+        for k, index in enumerate(finished.env_ids):
+            self.curriculum.update_on_episode(
+                float(finished.returns[k]), int(finished.lengths[k]), finished.tasks[k],
+                float(finished.successes[k]), int(index),
+            )  # fmt: skip
+        if not len(env_ids):
+            return np.zeros((0, 0), dtype=np.float32)
+        decode = self.curriculum.task_space.decode
+        return np.array([decode(t) for t in self.curriculum.sample(k=len(env_ids))], np.float32)
 
 
 def main(argv=None) -> dict:
@@ -64,7 +66,7 @@ def main(argv=None) -> dict:
     curriculum = domain_randomization(probe.task_space, args.seed)
     probe.close()
     envs = BatchedVectorEnv(
-        args.env, args.num_envs, task_source=SyllabusTaskSource(curriculum), **kwargs
+        args.env, args.num_envs, curriculum_sync=SyllabusSync(curriculum), **kwargs
     )
     rng = np.random.default_rng(args.seed)
     envs.reset(seed=args.seed)
