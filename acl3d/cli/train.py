@@ -149,7 +149,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g = p.add_argument_group("runtime")
     g.add_argument(
-        "--vec-env", help="auto (default: batched for acl3d envs), batched, dummy or subproc"
+        "--vec-env",
+        help="auto (default: batched for acl3d envs; warp for rsl-ppo on a GPU), batched, dummy, "
+        "subproc or warp (MuJoCo Warp's many-world simulation; rsl-ppo only)"
     )
     g.add_argument(
         "--envs-per-worker",

@@ -265,6 +265,8 @@ def worker_processes(config: TrainConfig, n_envs: int) -> int:
     """How many worker processes `n_envs` envs of this config start (0: all in this process)."""
     from acl3d.training.workers import is_batchable
 
+    if config.vec_env == "warp":  # one process: the many-world simulation
+        return 0
     batched = config.vec_env == "batched" or (config.vec_env == "auto" and is_batchable(config.env))
     if batched:
         per_worker = config.envs_per_worker
