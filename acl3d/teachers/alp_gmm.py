@@ -61,6 +61,37 @@ class NearestNeighbourALP:
         self._add(task, reward)
         return alp
 
+    def compute_batch(self, tasks: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        """`compute` of M pairs in order, in a few array operations: each task's nearest earlier
+        task among the database and the batch's earlier tasks (the same neighbour as M calls,
+        but for exact distance ties, which continuous tasks do not make)."""
+        m, alps = len(tasks), np.zeros(len(tasks))
+        if m == 0:
+            return alps
+        base = self.n
+        best_d = np.full(m, np.inf)
+        best_r = np.zeros(m)
+        if self.tree is not None:
+            d, j = self.tree.query(tasks)
+            best_d, best_r = d, self.rewards[self.tree_start + j]
+        earlier = self.tasks[self.tree_end : self.n]
+        if len(earlier):
+            d = np.sqrt(((tasks[:, None, :] - earlier[None]) ** 2).sum(axis=2))
+            j = d.argmin(axis=1)
+            closer = d[np.arange(m), j] < best_d
+            best_d = np.where(closer, d[np.arange(m), j], best_d)
+            best_r = np.where(closer, self.rewards[self.tree_end + j], best_r)
+        within = np.sqrt(((tasks[:, None, :] - tasks[None]) ** 2).sum(axis=2))
+        within[np.triu_indices(m)] = np.inf  # only the batch's earlier tasks
+        j = within.argmin(axis=1)
+        closer = within[np.arange(m), j] < best_d
+        best_r = np.where(closer, rewards[j], best_r)
+        known = base + np.arange(m) > 5  # `compute` scores a pair once 6 are known
+        alps[known] = np.abs(rewards - best_r)[known]
+        for task, reward in zip(tasks, rewards):
+            self._add(task, reward)
+        return alps
+
     def _add(self, task, reward) -> None:
         if self.n == len(self.tasks):
             self.tasks = np.concatenate([self.tasks, np.zeros_like(self.tasks)])
@@ -161,7 +192,9 @@ class ALPGMM(GMMTeacherBase):
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
         unit = self._to_unit(task)
-        alp = self.alp_computer.compute(unit, reward)
+        self._book_episode(unit, reward, self.alp_computer.compute(unit, reward))
+
+    def _book_episode(self, unit: np.ndarray, reward: float, alp: float) -> None:
         self.r_min, self.r_max = min(self.r_min, reward), max(self.r_max, reward)
         self.tasks_unit.append(unit)
         self.raw_alps.append(alp)
@@ -175,6 +208,18 @@ class ALPGMM(GMMTeacherBase):
                 ]
             )
         )
+
+    def _update_batch(self, tasks: np.ndarray, returns: np.ndarray, successes: np.ndarray):
+        """The episodes' ALPs in one batched neighbour search, then each episode's book-keeping
+        in order (a refit point may fall inside the batch); equal to the episodes one by one."""
+        if self.alp_computer.max_size is not None:  # points may drop out inside the batch
+            super()._update_batch(tasks, returns, successes)
+            return
+        units = ((tasks - self.mins) / self.span)[:, self.active]
+        alps = self.alp_computer.compute_batch(units, returns.astype(np.float64))
+        for unit, reward, alp in zip(units, returns.tolist(), alps.tolist()):
+            self._book_episode(unit, reward, alp)
+            self.nb_episodes += 1
 
     def _component_weights(self) -> np.ndarray:
         return np.maximum(self.gmm.means[:, -1], 0.0)

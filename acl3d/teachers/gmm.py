@@ -2,14 +2,17 @@
 
 Bootstrap, random-task ratio, fitting every `fit_rate` episodes over [normalised task, progress
 columns] (the EM is in `acl3d.teachers.mixture_fit`), sampling a Gaussian in proportion to its
-progress weight. With `fit_lag` K > 0 a refit runs in a background thread and its mixture is
-applied exactly K episodes after the fit point, so the step loop never waits for EM and a run
+progress weight. With `fit_lag` K > 0 a refit runs in a worker process (a thread's EM, small
+numpy calls holding the GIL, would slow the step loop as much as fitting inline) and its mixture
+is applied exactly K episodes after the fit point, so the step loop never waits for EM and a run
 stays reproducible bit for bit (the fit is a pure function of its data and seed).
 """
 
 from __future__ import annotations
 
-from concurrent.futures import Future, ThreadPoolExecutor
+import functools
+import multiprocessing
+from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -24,13 +27,14 @@ from acl3d.teachers.mixture_fit import (
     sklearn_mixture_class,
 )
 
-_REFITS: ThreadPoolExecutor | None = None  # one background thread for every teacher's refits
+_REFITS: ProcessPoolExecutor | None = None  # one worker process for every teacher's refits
 
 
-def _refits() -> ThreadPoolExecutor:
+def _refits() -> ProcessPoolExecutor:
     global _REFITS
     if _REFITS is None:
-        _REFITS = ThreadPoolExecutor(max_workers=1, thread_name_prefix="acl3d-gmm-refit")
+        context = multiprocessing.get_context("forkserver")
+        _REFITS = ProcessPoolExecutor(max_workers=1, mp_context=context)
     return _REFITS
 
 
@@ -238,13 +242,14 @@ class GMMTeacherBase(Teacher):
             "apply_at": self.nb_episodes + 1 + self.fit_lag,
         }
         if self.fit_lag == 0:
-            self._apply(self._run_fit(job))
+            self._apply(self._fit_of(job)())
         else:
-            self._refit = (job, _refits().submit(self._run_fit, job))
+            self._refit = (job, _refits().submit(self._fit_of(job)))
 
-    def _run_fit(self, job: dict[str, Any]) -> GaussianMixture:
-        """The fit of `job`: reads only settings fixed at construction (thread-safe)."""
-        return fit_mixture(
+    def _fit_of(self, job: dict[str, Any]):
+        """The fit of `job` as a picklable call (settings fixed at construction only)."""
+        return functools.partial(
+            fit_mixture,
             job["data"],
             self.potential_ks,
             job["em_seed"],
@@ -325,4 +330,4 @@ class GMMTeacherBase(Teacher):
                 "em_seed": int(job["em_seed"]),
                 "apply_at": int(job["apply_at"]),
             }
-            self._refit = (job, _refits().submit(self._run_fit, job))
+            self._refit = (job, _refits().submit(self._fit_of(job)))
