@@ -1,0 +1,157 @@
+"""The many-world simulation's speed: env steps/s through `ManyWorldTracks` against raw physics.
+
+    python scripts/bench_gpu.py --device cuda --sizes 1024 4096 16384
+    python scripts/bench_gpu.py --device cpu --sizes 4 --steps 20      # Warp's CPU device
+    python scripts/bench_gpu.py --first-step                           # a new process's start
+
+Per world count, in one run on one device (random actions in [-1, 1], classic biped):
+* raw physics: `WarpSimulation.step` alone (random controls, no rules, no resets, the tracks'
+  per-world terrain and caps) — what MuJoCo Warp gives;
+* env: `ManyWorldTracks.step` (servo caps, physics, rules, episode statistics, batched resets
+  with terrain generated on the CPU), Stump Tracks at a task with stumps (h=1, spacing 3), and
+  its ratio to raw physics;
+* resets' host share: the fraction of the env's time spent in the batched resets (terrain
+  generation and upload included), timed with device synchronisation in a separate pass.
+Each cell runs `--warmup` steps first (graph capture, kernel loading). `--first-step` times a
+new process from import to its first env step (the kernel cache's effect).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+
+import torch
+
+from acl3d.envs.many_worlds import ManyWorldTracks
+
+TASK = {"stump_height": 1.0, "obstacle_spacing": 3.0}
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def make_env(n: int, device: str, track: str, body: str) -> ManyWorldTracks:
+    env = ManyWorldTracks(n, device=device, track=track, body=body)
+    if track == "stump":
+        env.tasks[:] = env.task_space.to_vector(TASK)
+    env.reset(seed=0)
+    return env
+
+
+def raw_rate(env: ManyWorldTracks, steps: int, warmup: int) -> float:
+    sim, g = env.sim, torch.Generator(device=env.device).manual_seed(1)
+    ctrl = sim.field("ctrl")
+    for k in range(warmup + steps):
+        if k == warmup:
+            _sync(env.device)
+            t0 = time.perf_counter()
+        ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=env.device) * 2 - 1)
+        sim.step()
+    _sync(env.device)
+    return env.num_envs * steps / (time.perf_counter() - t0)
+
+
+def env_rate(env: ManyWorldTracks, steps: int, warmup: int) -> tuple[float, float]:
+    """(env steps/s, episodes finished per env step)."""
+    g = torch.Generator(device=env.device).manual_seed(2)
+    shape, finished = (env.num_envs, env.action_size), 0
+    for k in range(warmup + steps):
+        if k == warmup:
+            _sync(env.device)
+            t0 = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(
+            torch.rand(shape, generator=g, device=env.device) * 2 - 1
+        )
+        if k >= warmup:
+            finished += int((terminated | truncated).sum())
+    _sync(env.device)
+    return env.num_envs * steps / (time.perf_counter() - t0), finished / steps
+
+
+def reset_share(env: ManyWorldTracks, steps: int) -> float:
+    """Share of the env's step time spent in batched resets (synchronised timing)."""
+    spent = [0.0]
+    reset = env._reset_worlds
+
+    def timed(*args):
+        _sync(env.device)
+        t0 = time.perf_counter()
+        out = reset(*args)
+        _sync(env.device)
+        spent[0] += time.perf_counter() - t0
+        return out
+
+    env._reset_worlds = timed
+    g = torch.Generator(device=env.device).manual_seed(3)
+    _sync(env.device)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        env.step(
+            torch.rand((env.num_envs, env.action_size), generator=g, device=env.device) * 2 - 1
+        )
+    _sync(env.device)
+    total = time.perf_counter() - t0
+    env._reset_worlds = reset
+    return spent[0] / total
+
+
+def first_step_seconds(device: str, n: int) -> float:
+    code = (
+        "import time; t0 = time.perf_counter(); import torch;"
+        "from acl3d.envs.many_worlds import ManyWorldTracks;"
+        f"env = ManyWorldTracks({n}, device={device!r}); env.reset(seed=0);"
+        "env.step(torch.zeros((env.num_envs, env.action_size), device=env.device));"
+        f"torch.cuda.synchronize() if {device!r}.startswith('cuda') else None;"
+        "print(time.perf_counter() - t0)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cuda")
+    p.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096, 16384])
+    p.add_argument("--steps", type=int, default=200)
+    p.add_argument("--warmup", type=int, default=20)
+    p.add_argument("--track", default="stump", choices=("stump", "hexagon"))
+    p.add_argument("--body", default="classic_bipedal")
+    p.add_argument("--first-step", action="store_true", help="also time a new process's start")
+    p.add_argument("--json", help="write the rows to this file too")
+    a = p.parse_args()
+    rows = []
+    print(f"{a.track} tracks, {a.body}, device {a.device}, {a.steps} timed steps per cell")
+    print(f"{'worlds':>8} {'raw physics/s':>14} {'env steps/s':>12} {'ratio':>6} "
+          f"{'resets/step':>11} {'reset share':>11}")  # fmt: skip
+    for n in a.sizes:
+        t0 = time.perf_counter()
+        env = make_env(n, a.device, a.track, a.body)
+        build = time.perf_counter() - t0
+        raw = raw_rate(env, a.steps, a.warmup)
+        env.reset(seed=0)
+        rate, resets = env_rate(env, a.steps, a.warmup)
+        share = reset_share(env, max(a.steps // 4, 10))
+        row = dict(worlds=n, raw=raw, env=rate, ratio=rate / raw, resets_per_step=resets,
+                   reset_share=share, build_s=build, device=a.device, track=a.track)  # fmt: skip
+        rows.append(row)
+        print(f"{n:>8} {raw:>14,.0f} {rate:>12,.0f} {rate / raw:>6.2f} {resets:>11.1f} "
+              f"{share:>11.1%}   (build + first reset {build:.1f} s)", flush=True)  # fmt: skip
+        env.close()
+        del env
+    if a.first_step:
+        seconds = first_step_seconds(a.device, a.sizes[0])
+        rows.append({"first_step_s": seconds, "worlds": a.sizes[0], "device": a.device})
+        print(f"a new process's first env step ({a.sizes[0]} worlds): {seconds:.1f} s")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
