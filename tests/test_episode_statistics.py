@@ -133,3 +133,30 @@ def test_teacher_sync_learns_then_samples():
     assert teacher.nb_episodes == 2
     with pytest.raises(ValueError, match="teacher"):
         TeacherSync(object())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_steps_need_no_host_sync_and_match_numpy():
+    """On a GPU, `step` and a masked `begin` never read back to the host (checked on an H200)."""
+    n, steps, dev = 1024, 50, "cuda"
+    g = torch.Generator(device=dev).manual_seed(0)
+    rewards = torch.randn(steps, n, device=dev, generator=g)
+    ends = torch.rand(steps, n, device=dev, generator=g) < 0.02
+    tasks = torch.rand(steps, n, DIM, device=dev, generator=g)
+    a, b = EpisodeStatistics(n, DIM, device=dev), EpisodeStatistics(n, DIM)
+    a.begin(torch.ones(n, dtype=torch.bool, device=dev), tasks[0])
+    b.begin(np.arange(n), tasks[0].cpu().numpy())
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        for t in range(steps):
+            a.begin(a.step(rewards[t], ends[t], torch.zeros_like(ends[t])), tasks[t])
+    finally:
+        torch.cuda.set_sync_debug_mode(0)
+    for t in range(steps):
+        done = b.step(rewards[t].cpu().numpy(), ends[t].cpu().numpy(), np.zeros(n, bool))
+        b.begin(np.flatnonzero(done), tasks[t].cpu().numpy()[done])
+    pa, pb = a.pop().numpy(), b.pop()
+    assert len(pa) == len(pb) > 0
+    for name in ("env_ids", "tasks", "returns", "lengths", "total_steps"):
+        np.testing.assert_array_equal(getattr(pa, name), getattr(pb, name))

@@ -340,7 +340,8 @@ class _Torch:
 
     def where(self, mask, a, b):
         """Rows of `a` where the (N,) `mask` holds, else of `b` (same dtype as `b`)."""
-        a = self.torch.as_tensor(a, dtype=b.dtype, device=self.device)
+        if not isinstance(a, (int, float)):  # a Python number stays one: no host-to-device copy
+            a = self.torch.as_tensor(a, dtype=b.dtype, device=self.device)
         return self.torch.where(mask.reshape(-1, *([1] * (b.dim() - 1))), a, b)
 
     def indices(self, ids, n: int):
