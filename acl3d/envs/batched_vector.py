@@ -32,7 +32,12 @@ from gymnasium.vector.utils import batch_space
 from acl3d import validation
 from acl3d.envs.batched import BatchedEnvs
 from acl3d.envs.curriculum_wrapper import INFO_KEY, episode_report
-from acl3d.envs.episode_statistics import EpisodeBatch, EpisodeStatistics, TeacherSync
+from acl3d.envs.episode_statistics import (
+    EpisodeBatch,
+    EpisodeStatistics,
+    TeacherSync,
+    check_methods,
+)
 
 AUTORESET_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
@@ -63,12 +68,8 @@ class BatchedVectorEnv(VectorEnv):
             raise ValueError("teacher and curriculum_sync are exclusive: give one of them")
         if teacher is not None:
             curriculum_sync = TeacherSync(teacher)
-        elif curriculum_sync is not None and not callable(getattr(curriculum_sync, "sync", None)):
-            raise validation.fail(
-                "curriculum_sync",
-                curriculum_sync,
-                "a CurriculumSync: an object with sync(finished, env_ids)",
-            )
+        elif curriculum_sync is not None:
+            check_methods("curriculum_sync", curriculum_sync, ("sync",))
         self.batch = BatchedEnvs(env_id, num_envs, threads=threads, **env_kwargs)
         self.metadata = {"autoreset_mode": mode, "render_modes": []}
         self.curriculum_sync = curriculum_sync

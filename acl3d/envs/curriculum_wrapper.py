@@ -24,7 +24,7 @@ import numpy as np
 
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile
-from acl3d.envs.episode_statistics import EpisodeStatistics
+from acl3d.envs.episode_statistics import EpisodeStatistics, check_methods
 
 INFO_KEY = "curriculum"
 
@@ -45,25 +45,12 @@ def episode_report(
     }
 
 
-def check_teacher(teacher) -> None:
-    """ValueError unless `teacher` can propose tasks and learn from episodes one at a time."""
-    missing = [
-        m for m in ("sample_task", "episodic_update") if not callable(getattr(teacher, m, None))
-    ]
-    if missing:
-        raise validation.fail(
-            "teacher",
-            teacher,
-            f"an object with sample_task() and episodic_update(); {missing} missing",
-        )
-
-
 class CurriculumWrapper(gym.Wrapper):
     """One env whose tasks come from `teacher` (see the module docstring)."""
 
     def __init__(self, env: gym.Env, teacher):
         super().__init__(env)
-        check_teacher(teacher)
+        check_methods("teacher", teacher, ("sample_task", "episodic_update"))
         self.teacher = teacher
         self.stats: EpisodeStatistics | None = None  # sized at the first reset (the task's length)
         self._from_teacher = False

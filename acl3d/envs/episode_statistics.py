@@ -88,19 +88,18 @@ class BatchTeacher(Protocol):
     def update_batch(self, tasks, returns, successes) -> None: ...
 
 
+def check_methods(name: str, obj, methods: tuple[str, ...]) -> None:
+    """ValueError naming `name` unless `obj` has every one of `methods` (callable)."""
+    missing = [m for m in methods if not callable(getattr(obj, m, None))]
+    if missing:
+        raise validation.fail(name, obj, f"an object with {', '.join(methods)}; {missing} missing")
+
+
 class TeacherSync:
     """`CurriculumSync` of one teacher shared by all envs (numpy on the teacher's side)."""
 
     def __init__(self, teacher: BatchTeacher):
-        missing = [
-            m for m in ("sample_tasks", "update_batch") if not callable(getattr(teacher, m, None))
-        ]
-        if missing:
-            raise validation.fail(
-                "teacher",
-                teacher,
-                f"a teacher with sample_tasks(n) and update_batch(); {missing} missing",
-            )
+        check_methods("teacher", teacher, ("sample_tasks", "update_batch"))
         self.teacher = teacher
 
     def sync(self, finished: EpisodeBatch, env_ids) -> np.ndarray:

@@ -40,6 +40,12 @@ def _length(value) -> int:
     return validation.integer("length", value, 0, allow_float=True)
 
 
+def _finite_obs(obs: np.ndarray) -> np.ndarray:
+    if not np.all(np.isfinite(obs)):
+        raise ValueError("initial_obs: contains non-finite values")
+    return obs
+
+
 def _success(value) -> bool:
     if isinstance(value, (bool, np.bool_)) or (
         isinstance(value, (int, np.integer)) and value in (0, 1)
@@ -173,54 +179,52 @@ class TeacherController:
 
     def record_episode(self, env_task, episode_return, length, success, initial_obs=None) -> None:
         """A finished training episode on `env_task` (as returned by `sample_task`)."""
-        self._learn([self._checked(env_task, episode_return, length, success, initial_obs)])
-
-    def record_episodes(self, finished) -> None:
-        """Finished training episodes, oldest first (an `EpisodeBatch`, numpy arrays): the
-        teacher learns them in one `update_batch` call. All are checked before any is recorded."""
-        obs = finished.initial_obs
-        self._learn(
-            [
-                self._checked(*row, None if obs is None else obs[k])
-                for k, row in enumerate(
-                    zip(finished.tasks, finished.returns, finished.lengths, finished.successes)
-                )
-            ]
-        )
-
-    def _checked(self, env_task, episode_return, length, success, initial_obs) -> tuple:
         env_task = self._check_env_task(env_task)
         ret = validation.real("episode_return", episode_return)
-        length = _length(length)
-        success = _success(success)
+        length, success = _length(length), _success(success)
         if initial_obs is not None:
-            initial_obs = np.asarray(initial_obs, dtype=np.float32)
-            if not np.all(np.isfinite(initial_obs)):
-                raise ValueError("initial_obs: contains non-finite values")
-        return env_task, ret, length, success, initial_obs
+            initial_obs = _finite_obs(np.asarray(initial_obs, dtype=np.float32)[None])
+        self._learn(env_task[None], np.array([ret]), [length], np.array([success]), initial_obs)
 
-    def _learn(self, episodes: list[tuple]) -> None:
+    def record_episodes(self, finished) -> None:
+        """Finished training episodes, oldest first (an `EpisodeBatch` of numpy arrays): the
+        teacher learns them in one `update_batch` call. All are checked, at once, before any is
+        recorded."""
+        m, dim = len(finished), self.task_space.dim
+        tasks = validation.real_array("tasks", finished.tasks)
+        if tasks.shape != (m, dim):
+            raise validation.fail("tasks", tasks.shape, f"({m}, {dim}) for {m} episodes")
+        returns = validation.real_array("returns", finished.returns, shape=(m,))
+        lengths = np.asarray(finished.lengths)
+        if lengths.shape != (m,) or lengths.dtype.kind not in "iu" or np.any(lengths < 0):
+            raise validation.fail("lengths", finished.lengths, f"({m},) integers >= 0")
+        successes = np.asarray(finished.successes)
+        if successes.shape != (m,) or successes.dtype != bool:
+            raise validation.fail("successes", finished.successes, f"({m},) bools")
+        obs = finished.initial_obs
+        obs = None if obs is None else _finite_obs(np.asarray(obs, dtype=np.float32))
+        self._learn(tasks, returns, lengths.tolist(), successes, obs)
+
+    def _learn(self, env_tasks, returns, lengths, successes, initial_obs) -> None:
         """Checked episodes to the teacher (in teacher space, scaled) and to the records."""
-        if not episodes:
+        if not len(env_tasks):
             return
-        env_tasks = np.stack([e[0] for e in episodes])
         tasks = self.shuffler.inverse(env_tasks) if self.shuffler is not None else env_tasks
-        rewards = [self.scale(e[1]) if self.scale_reward else e[1] for e in episodes]
-        successes = np.array([e[3] for e in episodes], dtype=bool)
+        rewards = [self.scale(r) for r in returns] if self.scale_reward else returns
         # one episode (`record_episode`) goes through the teacher's one-episode API; SPDL gets
         # each episode's first state right before it
-        if len(episodes) == 1 or "initial_states" in self.needs:
-            for task, reward, e in zip(tasks, rewards, episodes):
-                if e[4] is not None:
-                    self.teacher.record_initial_state(task, e[4])
-                self.teacher.episodic_update(task, reward, e[3])
+        if len(tasks) == 1 or "initial_states" in self.needs:
+            for k, task in enumerate(tasks):
+                if initial_obs is not None:
+                    self.teacher.record_initial_state(task, initial_obs[k])
+                self.teacher.episodic_update(task, float(rewards[k]), bool(successes[k]))
         else:
             self.teacher.update_batch(tasks, rewards, successes)
         r = self._records
-        r["train_tasks"].extend(env_tasks.astype(np.float32))
-        r["train_returns"].extend(e[1] for e in episodes)
-        r["train_lengths"].extend(e[2] for e in episodes)
-        r["train_success"].extend(successes.tolist())
+        r["train_tasks"].extend(np.asarray(env_tasks, dtype=np.float32))
+        r["train_returns"].extend(np.asarray(returns, dtype=np.float64).tolist())
+        r["train_lengths"].extend(int(n) for n in lengths)
+        r["train_success"].extend(np.asarray(successes, dtype=bool).tolist())
 
     def maybe_sample_periodically(self, total_steps: int) -> np.ndarray | None:
         """Every `keep_periodical_task_samples` steps, keep 100 non-exploratory task samples
