@@ -11,12 +11,15 @@ float (`10**400`) are rejected. Every failure is a `ValueError` of the form
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 
 import numpy as np
 
 _REAL_TYPES = (int, float, np.integer, np.floating)
 _MAX_SHOWN = 200  # characters of a rejected value shown in a message
+MAX_NAME_BYTES = 255  # a file or folder name (one path component) on Linux and macOS
+MAX_PATH_BYTES = 4095  # a whole path (Linux's PATH_MAX less its terminating byte)
 
 
 def fail(name: str, value, valid: str) -> ValueError:
@@ -142,6 +145,21 @@ def real_array_in(name: str, value, low: float, high: float, what: str = "values
         shown = np.round(arr, 4).tolist()
         raise fail(name, shown, f"{what} [{low:g}, {high:g}]")
     return arr
+
+
+def path(name: str, value) -> str:
+    """A non-empty path string the OS can take: every name in it at most 255 bytes and the whole
+    at most 4095 (encoded), so that a long name is refused before anything is written."""
+    valid = f"a path whose names are at most {MAX_NAME_BYTES} bytes each"
+    if not isinstance(value, str) or not value:
+        raise fail(name, value, valid)
+    encoded = os.fsencode(value)
+    longest = max(len(part) for part in encoded.split(b"/"))
+    if longest > MAX_NAME_BYTES:
+        raise fail(name, value, f"{valid} (one here has {longest})")
+    if len(encoded) > MAX_PATH_BYTES:
+        raise fail(name, value, f"a path of at most {MAX_PATH_BYTES} bytes ({len(encoded)} here)")
+    return value
 
 
 def only_reals(value) -> bool:

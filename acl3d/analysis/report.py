@@ -63,11 +63,14 @@ def markdown_table(rows: list[dict], columns: list[str]) -> str:
     return "\n".join(lines)
 
 
+MAX_REPS = 200_000  # bootstrap replicates: (reps x runs) index and score arrays in memory
+
+
 def check_options(metric: str, reps: int) -> None:
     if metric not in METRICS:
         raise ValueError(f"metric {metric!r} unknown; valid: {', '.join(METRICS)}")
-    if isinstance(reps, bool) or not isinstance(reps, int) or reps < 100:
-        raise ValueError(f"reps must be an integer >= 100, got {reps!r}")
+    if isinstance(reps, bool) or not isinstance(reps, int) or not 100 <= reps <= MAX_REPS:
+        raise ValueError(f"reps={reps!r}; valid: an integer in [100, {MAX_REPS}]")
 
 
 def analyze(

@@ -94,6 +94,37 @@ class CampaignDir:
             yield
 
 
+# The options only an environment can check, and what it checks them with.
+_ENVIRONMENT_OPTIONS = ("env", "body", "env_kwargs", "bounds", "test_set", "nb_test_episodes")
+
+
+def check_environments(runs: list[RunSpec]) -> None:
+    """What only the environment can check (its `env_kwargs`, buildable `bounds`, the test set
+    and its tasks), once per distinct environment setting: a bad value is refused here, before
+    the campaign writes anything, instead of failing every attempt of its runs."""
+    from acl3d.teachers import test_sets
+    from acl3d.training import TrainConfig
+    from acl3d.training.session import check_test_tasks, probe_env, probe_task_space
+
+    seen = set()
+    for run in runs:
+        config = TrainConfig.from_dict({**run.options, "out": run.name})
+        setting = json.dumps([getattr(config, k) for k in _ENVIRONMENT_OPTIONS], sort_keys=True)
+        if setting in seen:
+            continue
+        seen.add(setting)
+        try:
+            env = probe_env(config)
+            try:
+                space, profile = probe_task_space(config, env)
+                tasks = test_sets.resolve(config.test_set, space, config.nb_test_episodes, profile)
+                check_test_tasks(env, tasks, space.flat_names())
+            finally:
+                env.close()
+        except ValueError as exc:
+            raise ValueError(f"run {run.name}: {exc}") from None
+
+
 def _comparable(runs: list[dict]) -> set:
     return {(r["name"], json.dumps(r["options"], sort_keys=True)) for r in runs}
 
@@ -119,6 +150,7 @@ def run_campaign(
     check_executor(executor, max_parallel, address)
     runs = spec.expand()
     check_runs(runs, on_this_machine=address is None)  # a cluster's nodes check their own bounds
+    check_environments(runs)
     cpus = {cpus_of(r.options) for r in runs}
     if len(cpus) != 1:
         raise ValueError(f"every run of a campaign must use the same torch_threads, got {cpus}")

@@ -32,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from acl3d import validation as check
 from acl3d.training import TrainConfig
 
 # Options the campaign sets itself for every run.
@@ -86,7 +87,7 @@ class CampaignSpec:
             base=dict(doc.get("base") or {}),
             grid=dict(doc.get("grid") or {}),
             seeds=_seed_list(doc.get("seeds", 1), f"{where}: seeds"),
-            exclude=list(doc.get("exclude") or []),
+            exclude=_rule_list(doc.get("exclude"), f"{where}: exclude"),
             baseline=str(doc.get("baseline", "random")),
         )
         spec.check(where)
@@ -98,7 +99,7 @@ class CampaignSpec:
         for axis, values in self.grid.items():
             for _, _, options in _axis_entries(axis, values, f"{where}: grid.{axis}"):
                 check_options(options, f"{where}: grid.{axis}")
-        for i, rule in enumerate(self.exclude):
+        for i, rule in enumerate(_rule_list(self.exclude, f"{where}: exclude")):
             if not isinstance(rule, dict) or not rule:
                 raise ValueError(f"{where}: exclude[{i}] must be a non-empty mapping, got {rule!r}")
 
@@ -179,6 +180,7 @@ def check_runs(runs: list[RunSpec], on_this_machine: bool = True) -> None:
     from acl3d.training.config import student_params, validate
 
     for run in runs:
+        check.path("run name", run.name)  # a grid label too long for a folder name
         try:
             config = TrainConfig.from_dict({**run.options, "out": run.name})
             validate(config, on_this_machine=on_this_machine)
@@ -262,6 +264,14 @@ def _whole_number(value, key: str):
     return int(number) if number.is_integer() else value
 
 
+def _rule_list(rules, where: str) -> list:
+    if rules is None:
+        return []
+    if not isinstance(rules, list):
+        raise ValueError(f"{where}: expected a list of mappings, got {rules!r}")
+    return list(rules)
+
+
 def _seed_list(seeds, where: str) -> list[int]:
     if isinstance(seeds, int) and not isinstance(seeds, bool):
         if seeds < 1:
@@ -312,7 +322,12 @@ def _scale(options: dict, budget: float) -> dict:
     for key in STEP_COUNTS:
         value = out.get(key)
         if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
-            out[key] = max(1, int(round(value * budget)))
+            scaled = value * budget
+            if not math.isfinite(scaled):
+                raise ValueError(
+                    f"budget={budget!r}: {key}={value} x budget is not a finite number"
+                )
+            out[key] = max(1, int(round(scaled)))
     return out
 
 

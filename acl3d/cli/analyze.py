@@ -4,12 +4,19 @@ campaign's runs, alone or beside a reference protocol's committed runs."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+import acl3d
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", help="campaign directory (or any folder holding run directories)")
     p.add_argument("--baseline", default="random", help="reference teacher (default random)")
-    p.add_argument("--out", help="report directory (default DIR/report)")
+    p.add_argument(
+        "--out",
+        help="report directory (default DIR/report; for the results shipped with acl3d, "
+        "report_NAME in the current directory)",
+    )
     p.add_argument(
         "--metric",
         default="mastered_pct",
@@ -26,15 +33,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def default_out(root) -> Path | None:
+    """Where the report goes without --out: None (the analysis' default, beside the runs), or
+    for runs inside the acl3d package (its shipped results; read-only in an install, and not
+    to be polluted) report_NAME in the current directory."""
+    package = Path(acl3d.__file__).resolve().parent
+    folder = Path(root).resolve()
+    if folder == package or package in folder.parents:
+        return Path.cwd() / f"report_{folder.name}"
+    return None
+
+
 def run(args) -> int:
+    out = args.out if args.out is not None else default_out(args.dir)
     if args.reference is not None:
         from acl3d.analysis.reference import analyze_against
 
-        out = analyze_against(args.dir, args.reference, args.out, args.metric, args.reps, args.seed)
+        out = analyze_against(args.dir, args.reference, out, args.metric, args.reps, args.seed)
         print(f"report written to {out / 'report.md'}")
         return 0
     from acl3d.analysis import analyze
 
-    out = analyze(args.dir, args.out, args.baseline, args.metric, args.reps, args.seed)
+    out = analyze(args.dir, out, args.baseline, args.metric, args.reps, args.seed)
     print(f"report written to {out / 'report.md'}")
     return 0

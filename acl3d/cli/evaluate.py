@@ -19,6 +19,7 @@ import numpy as np
 
 from acl3d import validation as check
 from acl3d.cli.test_set_options import add_test_set_arguments
+from acl3d.cli.train import option_message
 from acl3d.training.config import TrainConfig
 
 BARE_ZIP_SEED = 0
@@ -89,7 +90,8 @@ def resolve_target(target, env: str | None, body: str | None) -> Target:
     path = Path(target)
     if path.is_dir():
         run = RunDir(path)
-        config = TrainConfig.from_dict(run.read_config())
+        config = TrainConfig.recorded(run.read_section("config"), str(run.config_yaml))
+        run.read_section("resolved")  # as resume: a config.yaml cut short is refused
         return Target(
             run.best_model(),
             env or config.env,
@@ -176,6 +178,20 @@ def check_args(args) -> None:
         check_writable_file(Path(args.out), "--out")
 
 
+def check_episodes(episodes: int, n_tasks: int) -> None:
+    """All the test episodes together within the bound of a test pass (memory, time)."""
+    from acl3d.training.config import MAX_TEST_EPISODES
+
+    most = max(1, MAX_TEST_EPISODES // n_tasks)
+    if episodes > most:
+        raise check.fail(
+            "--episodes",
+            episodes,
+            f"an integer in [1, {most}]: {n_tasks} test tasks x --episodes must be <= "
+            f"{MAX_TEST_EPISODES} episodes",
+        )
+
+
 def run(args) -> int:
     from acl3d.run_format.checkpoints import check_zip
     from acl3d.teachers import test_sets
@@ -195,8 +211,12 @@ def run(args) -> int:
     if args.test_set is None and t.tasks is not None:
         tasks, test_set = t.tasks, "the run's test set"
     else:
-        tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes, profile)
+        try:
+            tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes, profile)
+        except ValueError as exc:
+            raise ValueError(option_message(str(exc))) from None
         test_set = f"test set {args.test_set or 'default'}"
+    check_episodes(args.episodes, len(tasks))
     seed = t.seed if args.seed is None else args.seed
     n_envs = t.n_envs if args.n_envs is None else args.n_envs
     deterministic = t.deterministic if args.deterministic is None else args.deterministic

@@ -87,15 +87,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
+# Upper bounds of the counts (memory: the tasks and a grid's frames are held at once).
+_MOST = {
+    "episodes": 1_000,
+    "max_steps": 100_000,
+    "every": 100_000,
+    "width": 4_096,
+    "height": 4_096,
+    "strip_frames": 100,
+    "frames": 10_000,
+    "cols": 64,
+    "fps": 1_000,
+}
+
+
 def _check_counts(args) -> None:
-    for name in ("episodes", "max_steps", "every", "width", "height", "strip_frames", "frames"):
+    from acl3d import validation as check
+
+    for name, most in _MOST.items():
         value = getattr(args, name)
-        if value < 1:
-            raise ValueError(f"--{name.replace('_', '-')}={value}: must be >= 1")
-    for name in ("cols", "fps"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise ValueError(f"--{name}={value}: must be >= 1")
+        if value is not None:
+            check.integer(f"--{name.replace('_', '-')}", value, 1, most)
     if len(args.task) > 1 and args.episodes != 1:
         raise ValueError("--episodes repeats a single --task; with several --task leave it at 1")
     if args.task and args.test_set:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import yaml
 
+from acl3d import validation as check
 from acl3d.bodies import BODIES
 from acl3d.cli.test_set_options import add_test_set_arguments
 from acl3d.envs import ENV_NAMES
@@ -151,7 +152,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--vec-env",
         help="auto (default: batched for acl3d envs; warp for rsl-ppo on a GPU), batched, dummy, "
-        "subproc or warp (MuJoCo Warp's many-world simulation; rsl-ppo only)"
+        "subproc or warp (MuJoCo Warp's many-world simulation; rsl-ppo only)",
     )
     g.add_argument(
         "--envs-per-worker",
@@ -260,6 +261,10 @@ def load_config_file(path) -> dict:
     if not isinstance(data, dict):
         raise ValueError(f"--config file {str(path)!r} must hold a mapping of options")
     options = {k.replace("-", "_"): v for k, v in data.items()}
+    for key in _MAPPING_OPTIONS:  # merged with the repeatable options: checked here
+        if key in options and not isinstance(options[key], dict):
+            where = f"--config file {str(path)!r}"
+            raise ValueError(f"{where}: {check.fail(key, options[key], 'a mapping of names')}")
     for key in _COUNTS:  # YAML reads 2e6 as a string
         if isinstance(options.get(key), str):
             try:
@@ -349,7 +354,7 @@ def option_message(message: str) -> str:
 
 
 def run(args) -> int:
-    from acl3d.atomic_files import is_disk_full
+    from acl3d.atomic_files import check_creatable_dir, is_disk_full
     from acl3d.training import train
     from acl3d.training.run_dir import RunDir
 
@@ -358,6 +363,8 @@ def run(args) -> int:
         options["out"] = default_run_dir(options)
         print(f"[acl3d] writing the run to {options['out']} (--out to choose)")
     where = args.resume or options.get("out")
+    if args.resume:  # a read-only mount: refused before anything is built
+        check_creatable_dir(Path(args.resume), "--resume")
     try:
         result = (
             train(resume=args.resume, overwrite=args.overwrite, **options)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib
+import inspect
 from typing import NamedTuple
 
 import gymnasium as gym
@@ -48,11 +50,50 @@ REGISTRY: dict[str, Registration] = {
 ENV_IDS: dict[str, str] = {name: reg.id for name, reg in REGISTRY.items()}
 ENV_NAMES: tuple[str, ...] = tuple(REGISTRY)
 
+# Arguments of the batched vector env alone (`gymnasium.make_vec(..., "vector_entry_point")`).
+VECTOR_ONLY_KWARGS = ("teacher", "curriculum_sync", "threads", "autoreset_mode")
+
+
+class SingleEnvEntryPoint:
+    """Gymnasium's entry point of one acl3d env: its class (imported on first use), refusing the
+    batched vector env's own arguments with a pointer to it, since `make_vec`'s "sync" and
+    "async" modes hand every keyword to each single env."""
+
+    def __init__(self, registration: Registration):
+        self.registration = registration
+
+    def __repr__(self) -> str:
+        return f"SingleEnvEntryPoint({self.registration.entry_point!r})"
+
+    def env_class(self) -> type:
+        module, _, name = self.registration.entry_point.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+    @property
+    def metadata(self) -> dict:
+        return self.env_class().metadata
+
+    @property
+    def __signature__(self) -> inspect.Signature:
+        return inspect.signature(self.env_class())
+
+    def __call__(self, **kwargs) -> gym.Env:
+        given = [k for k in VECTOR_ONLY_KWARGS if k in kwargs]
+        if given:
+            raise TypeError(
+                f"{self.registration.id}: {', '.join(given)} belong to the batched vector env; "
+                f'build it with gymnasium.make_vec("{self.registration.id}", num_envs, '
+                f'vectorization_mode="vector_entry_point", {given[0]}=...) (a single env, as '
+                'gymnasium.make and make_vec\'s "sync" and "async" modes build, takes none)'
+            )
+        return self.env_class()(**kwargs)
+
+
 for _reg in REGISTRY.values():
     if _reg.id not in gym.registry:
         gym.register(
             id=_reg.id,
-            entry_point=_reg.entry_point,
+            entry_point=SingleEnvEntryPoint(_reg),
             vector_entry_point=_reg.vector_entry_point,
             kwargs=_reg.kwargs,
             max_episode_steps=MAX_EPISODE_STEPS,

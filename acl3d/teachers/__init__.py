@@ -8,6 +8,7 @@ works from the command line without registering anything.
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import inspect
 
@@ -56,8 +57,10 @@ def register(cls: type[Teacher]) -> type[Teacher]:
 def teacher_class(name: str) -> type[Teacher]:
     """The class of a registered name, or of a "package.module:Class" path."""
     if not isinstance(name, str) or (name not in _REGISTRY and ":" not in name):
+        close = difflib.get_close_matches(str(name), registered(), n=1)
+        guess = f" (did you mean {close[0]!r}?)" if close else ""
         raise ValueError(
-            f"unknown teacher {name!r}; valid teachers: {', '.join(registered())} "
+            f"unknown teacher {name!r}{guess}; valid teachers: {', '.join(registered())} "
             "or a 'package.module:Class' path"
         )
     entry = _REGISTRY.get(name, name)

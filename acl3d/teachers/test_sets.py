@@ -28,6 +28,10 @@ from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
 
 UNIFORM_SEED = 31
+# Bounds that protect the machine: a test pass of this many episodes already costs up to 2e8 env
+# steps, and a file is read whole before its tasks are counted.
+MAX_TASKS = 100_000
+MAX_FILE_BYTES = 256 * 2**20
 
 
 def validate(tasks, task_space) -> np.ndarray:
@@ -41,6 +45,7 @@ def validate(tasks, task_space) -> np.ndarray:
         raise ValueError(
             f"test set: expected shape (N >= 1, {space.dim}) for {space.flat_names()}, got {arr.shape}"
         )
+    _check_size(len(arr), "test set")
     bad = np.argwhere(~np.isfinite(arr))
     if len(bad):
         i, j = bad[0]
@@ -48,6 +53,11 @@ def validate(tasks, task_space) -> np.ndarray:
             f"test set: non-finite value in task {i}, dimension {space.flat_names()[j]!r}"
         )
     return arr
+
+
+def _check_size(n_tasks: int, where: str) -> None:
+    if n_tasks > MAX_TASKS:
+        raise ValueError(f"{where}: {n_tasks} tasks; valid: at most {MAX_TASKS}")
 
 
 def _points_per_dim(nb_tasks: int, n_free: int) -> int:
@@ -117,11 +127,19 @@ def load(path, task_space) -> np.ndarray:
     """Read a .json or .csv test set (see the module docstring) and validate it."""
     space = TaskSpace.coerce(task_space)
     path = Path(path)
+    where = f"test_set={str(path)!r}"
     if not path.is_file():
-        raise ValueError(f"test set file {str(path)!r} does not exist")
-    where = f"test set {str(path)!r}"
+        raise ValueError(f"{where}: no such file")
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise ValueError(f"{where}: a file of {size} bytes; valid: at most {MAX_FILE_BYTES}")
     if path.suffix == ".json":
-        data = json.loads(path.read_text())
+        try:
+            data = json.loads(path.read_text())
+        except (ValueError, UnicodeDecodeError) as exc:  # JSONDecodeError says where it failed
+            raise ValueError(f"{where}: not valid JSON ({exc})") from None
+        tasks = data.get("tasks") if isinstance(data, Mapping) else data
+        _check_size(len(tasks) if isinstance(tasks, list) else 0, where)
         if isinstance(data, Mapping):
             if "names" not in data or "tasks" not in data:
                 raise ValueError(
@@ -140,6 +158,7 @@ def load(path, task_space) -> np.ndarray:
         if not rows:
             raise ValueError(f"{where}: empty file")
         body = [r for r in rows[1:] if r]
+        _check_size(len(body), where)
         try:
             values = [[float(v) for v in r] for r in body]
         except ValueError as exc:

@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from acl3d import validation as check
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
+from acl3d.teachers.test_sets import MAX_TASKS as MAX_TEST_TASKS
 
 DEFAULT_N_ENVS = 16  # training envs when none are asked for: one batched env of 16 fills 2 cores
 TEACHMYAGENT_EVAL_EVERY = 500_000
@@ -25,7 +26,7 @@ TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
 # differ only by the policy (not by the stump-height noise of the test tracks).
 EVAL_SEED_OFFSET = 7919
 # Bounds that protect the machine (memory, processes, threads) and the seeding libraries.
-MAX_TEST_EPISODES = 100_000  # a test pass of this many episodes already costs up to 2e8 steps
+MAX_TEST_EPISODES = MAX_TEST_TASKS  # a test pass of this many already costs up to 2e8 steps
 MAX_SEED = 2**31 - 1  # numpy's legacy seeding takes < 2**32; derived seeds add small offsets
 MIN_WORKER_PROCESSES = 16  # worker processes allowed on any machine (else 4 per CPU core)
 
@@ -138,6 +139,27 @@ class TrainConfig:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    @classmethod
+    def recorded(cls, values, where: str) -> TrainConfig:
+        """The config a run directory recorded, refused when a field is missing or a mapping is
+        not one (a torn or cut config.yaml), instead of defaults standing in for the run's values;
+        `out` may be missing (exported runs drop it)."""
+        if not isinstance(values, dict):
+            raise ValueError(f"{where}: its 'config' section is not a mapping")
+        missing = [
+            f.name for f in dataclasses.fields(cls) if f.name not in values and f.name != "out"
+        ]
+        if missing:
+            raise ValueError(
+                f"{where} lacks config field(s) {missing[:6]}{' ...' if len(missing) > 6 else ''}"
+                " (torn or edited?); valid: the config.yaml that acl3d train wrote (config.json "
+                "holds a copy)"
+            )
+        for name in _MAPPINGS:
+            if not isinstance(values[name], dict):
+                raise ValueError(f"{where}: config {check.fail(name, values[name], 'a mapping')}")
+        return cls.from_dict(values)
+
 
 # Options a resumed run may change (runtime settings, and `steps` to extend it). Not the vec env
 # kind or envs per worker: an in-process batched env pulls each task at its reset, worker
@@ -214,9 +236,8 @@ def validate(config: TrainConfig, *, on_this_machine: bool = True) -> None:
     for name, pair in config.bounds.items():
         check.real_array(f"bounds[{name!r}]", pair, shape=(2,))
     for name in ("out", "test_set"):
-        value = getattr(config, name)
-        if value is not None and (not isinstance(value, str) or not value):
-            raise check.fail(name, value, "a path (non-empty string) or None")
+        if getattr(config, name) is not None:
+            check.path(name, getattr(config, name))
     if config.envs_per_worker is not None and config.envs_per_worker > config.n_envs:
         raise check.fail(
             "envs_per_worker", config.envs_per_worker, f"None or an integer in [1, {config.n_envs}]"

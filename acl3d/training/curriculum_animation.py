@@ -17,7 +17,7 @@ import numpy as np
 from acl3d.run_format.tables import read_csv
 from acl3d.teachers import registered, teacher_class
 from acl3d.teachers.plots import render_frame
-from acl3d.training.run_dir import RunDir
+from acl3d.training.run_dir import RunDir, read_state
 from acl3d.video import open_sink
 
 _EPISODE_COLUMNS = {"step", "worker", "return", "length", "success", "truncated"}
@@ -82,9 +82,7 @@ def curriculum_frames(run_dir, frames: int = 40) -> tuple[list[dict], dict]:
 def _teacher_dump(run: RunDir) -> dict | None:
     if not run.teacher_prefix.with_suffix(".json").exists():
         return None
-    from acl3d.teachers.base import load_state
-
-    return load_state(run.teacher_prefix)
+    return read_state(run.teacher_prefix)  # a damaged dump is a ValueError naming it
 
 
 def write_curriculum_animation(

@@ -89,14 +89,39 @@ def probe_task_space(config: TrainConfig, env=None):
     try:
         task_space = getattr(env.unwrapped, "task_space", None)
         profile = getattr(env.unwrapped, "curriculum_profile", None)
+        if task_space is None:
+            raise ValueError(
+                f"environment {config.env!r} has no task_space: no curriculum possible"
+            )
+        if config.bounds:
+            task_space = task_space.with_bounds(**{k: tuple(v) for k, v in config.bounds.items()})
+            check_bounds(env, task_space, config)
     finally:
         if own:
             env.close()
-    if task_space is None:
-        raise ValueError(f"environment {config.env!r} has no task_space: no curriculum possible")
-    if config.bounds:
-        task_space = task_space.with_bounds(**{k: tuple(v) for k, v in config.bounds.items()})
     return task_space, profile
+
+
+def check_bounds(env, task_space, config: TrainConfig) -> None:
+    """Both ends of every bounded parameter must be buildable (the env's `set_task` check), so
+    that no task the teacher samples fails after the run started, or after `overwrite` deleted
+    the run it replaces."""
+    set_task = getattr(env.unwrapped, "set_task", None)
+    if set_task is None:
+        return
+    for p in task_space.parameters:
+        if p.name not in config.bounds:
+            continue
+        for end in (p.low, p.high):
+            try:
+                set_task({p.name: end[0] if p.dims == 1 else np.asarray(end)})
+            except ValueError as exc:
+                why = " ".join(str(exc).split())
+                raise check.fail(
+                    f"bounds[{p.name!r}]",
+                    config.bounds[p.name],
+                    f"a (min, max) pair {config.env} can build ({why})",
+                ) from None
 
 
 def check_test_tasks(env, tasks, task_names: list[str]) -> None:

@@ -109,6 +109,7 @@ def check_params(student: str, params: dict, n_envs: int) -> None:
 MAX_BUFFER_SIZE = 50_000_000
 MAX_ROLLOUT = 10_000_000  # PPO's n_steps x n_envs
 MAX_LAYER = 65_536  # units per hidden layer
+MAX_HIDDEN_WEIGHTS = 50_000_000  # between the hidden layers of one network: 200 MB of float32
 
 
 def _check_values(params: dict, n_envs: int) -> None:
@@ -166,6 +167,16 @@ def _check_ranges(params: dict, n_envs: int, name) -> None:
             arch,
             f"a list of layer sizes in [1, {MAX_LAYER}] (or {{'pi': [...], 'vf': [...]}})",
         )
+    for chain in arch.values() if isinstance(arch, dict) else [layers]:
+        chain = chain if isinstance(chain, list) else [chain]
+        weights = sum(a * b for a, b in zip(chain, chain[1:]))
+        if weights > MAX_HIDDEN_WEIGHTS:
+            raise check.fail(
+                "student_params['policy_kwargs']['net_arch']",
+                arch,
+                f"at most {MAX_HIDDEN_WEIGHTS:,} weights between hidden layers (the sum of the "
+                f"products of consecutive sizes; {chain} has {weights:,})",
+            )
 
 
 _POSITIVE_REALS = ("learning_rate", "clip_range", "max_grad_norm")
