@@ -16,6 +16,7 @@ import torch
 
 pytest.importorskip("rsl_rl")
 
+from acl3d import provenance  # noqa: E402
 from acl3d.cli import main  # noqa: E402
 from acl3d.teachers.base import load_state  # noqa: E402
 from acl3d.training import students  # noqa: E402
@@ -52,6 +53,15 @@ def test_short_run_writes_the_run_directory(reference):
     assert actions.shape == (3, 4) and np.all(np.abs(actions) <= 1)
 
 
+def test_provenance_records_the_machine_and_device(reference):
+    (segment,) = provenance.load(reference)
+    assert (segment["event"], segment["step"], segment["end"]) == ("start", 0, "finished")
+    assert segment["end_step"] == STEPS
+    assert segment["device"] == "cpu, vec_env batched"
+    for key in ("acl3d", "cpu_model", "host", "python", "torch", "mujoco", "numpy"):
+        assert segment[key], key
+
+
 def _read_latest(run: Path) -> str | None:
     try:
         return (run / "checkpoints" / "LATEST").read_text().strip()
@@ -73,6 +83,10 @@ def test_sigkilled_run_resumes_bit_identically(reference, tmp_path, checkout):
     assert proc.returncode == -signal.SIGKILL, err.decode()[-2000:]
     assert not (out / "final_model.zip").exists()
     assert main(["train", "--resume", str(out), "--no-progress", "--quiet"]) == 0
+    killed, resumed = provenance.load(out)  # the killed segment has no end
+    assert "end" not in killed and killed["event"] == "start"
+    assert resumed["event"] == "resume" and resumed["end"] == "finished" and resumed["step"] > 0
+    assert provenance.interruptions([killed, resumed]) == 1
     for name in ("evals_tasks.csv", "episodes.csv"):
         assert (reference / name).read_text() == (out / name).read_text(), name
     dump_a, dump_b = load_state(reference / "teacher"), load_state(out / "teacher")

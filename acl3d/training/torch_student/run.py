@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from acl3d import provenance
 from acl3d.atomic_files import atomic_replace, atomic_state_files, temp_prefix
 from acl3d.envs.batched import MAX_ENVS
 from acl3d.envs.many_worlds import check_many_worlds, many_worlds
@@ -91,6 +92,15 @@ class TorchRun:
             check_many_worlds(config.env)
         self.curriculum = _Curriculum(self.controller)
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
+        self.steps: int | None = None  # the steps trained, once provenance.json has its segment
+
+    def device_name(self) -> str:
+        """The device the student and worlds run on, with the GPU's model (runs on two GPU models
+        need not agree step for step) and the simulation it steps."""
+        name = str(self.device)
+        if self.device.type == "cuda":
+            name += f" ({torch.cuda.get_device_name(self.device)})"
+        return f"{name}, vec_env {'warp' if self.warp else 'batched'}"
 
     def wall_time(self) -> float:
         return self.previous_wall_time + time.perf_counter() - self.started
@@ -156,6 +166,9 @@ class TorchRun:
                 for path in (run.evals_csv, run.evals_tasks_csv, run.episodes_csv):
                     truncate_csv(path, "step", steps)
             run.set_status("running", pid=os.getpid())
+            event = "start" if self.resume_from is None else "resume"
+            provenance.record(run.path, event, steps, self.device_name())
+            self.steps = steps
             return self._loop(obs, steps, target)
         finally:
             self.env.close()
@@ -181,6 +194,7 @@ class TorchRun:
                     obs, rewards, terminated, truncated, extras = self.env.step(actions)
                     self.student.record(rewards, terminated, truncated, extras["final_obs"])
                     steps += n
+                    self.steps = steps
                     self.controller.maybe_sample_periodically(steps)
             collect = time.perf_counter() - tick
             losses = self.student.update(obs)
@@ -327,16 +341,30 @@ def train_run(config: TrainConfig, run: RunDir, resume_from, target: int, overwr
     except KeyboardInterrupt:
         if run.exists():
             run.set_status("interrupted", latest_checkpoint=run.latest_checkpoint_name())
+        _close_provenance(torch_run, "interrupted")
         raise
     except BaseException as exc:
         if run.exists():
             run.set_crashed(exc)
+        _close_provenance(torch_run, "crashed")
         raise
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
     run.set_status("finished", steps=steps)
+    provenance.close(run.path, "finished", steps)
     return steps
+
+
+def _close_provenance(torch_run: TorchRun, end: str) -> None:
+    """End the segment this process recorded (none when it stopped before the run started); a
+    failing write (a full disk) never hides the error that ended the run."""
+    if torch_run.steps is None:
+        return
+    try:
+        provenance.close(torch_run.run.path, end, torch_run.steps)
+    except OSError:
+        pass
 
 
 def _interrupt(signum, frame):
