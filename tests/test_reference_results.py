@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from acl3d import results
+from acl3d import provenance, results
+from acl3d.analysis.curriculum_files import read_episodes, read_teacher
 from acl3d.analysis.export import export_campaign
 from acl3d.analysis.leaderboard import (
     HEADLINE_END,
@@ -125,8 +126,8 @@ def test_export_of_a_real_run(tmp_path):
     assert names == ["random__s0"]
     got = tmp_path / "exported" / "random__s0"
     assert sorted(p.name for p in got.iterdir()) == [
-        "config.yaml", "episodes_summary.csv", "evals.csv", "evals_tasks.csv", "status.json",
-        "test_set.csv",
+        "config.yaml", "episodes.npz", "episodes_summary.csv", "evals.csv", "evals_tasks.csv",
+        "provenance.json", "status.json", "teacher.json", "teacher.npz", "test_set.csv",
     ]  # fmt: skip
     config = yaml.safe_load((got / "config.yaml").read_text())
     assert "out" not in config["config"] and "command" not in config["environment"]
@@ -141,6 +142,19 @@ def test_export_of_a_real_run(tmp_path):
     inside = [float(e["return"]) for e in episodes if float(e["step"]) <= int(first["step_end"])]
     assert float(first["mean_return"]) == pytest.approx(np.mean(inside), rel=1e-5)
     assert len(returns) > 0
+    # every episode, the teacher's sampling record and the provenance ship with the run
+    shipped = read_episodes(got)
+    assert int(shipped["every"]) == 1 and int(shipped["episodes"]) == len(episodes)
+    np.testing.assert_array_equal(shipped["return"], np.float32(returns))
+    assert list(shipped["step"]) == [int(e["step"]) for e in episodes]
+    dump, original_dump = read_teacher(got), read_teacher(run_dir)
+    assert dump["every"] == 1 and "train_returns" in dump["left_out"]
+    assert len(dump["periodical_samples"]) == len(original_dump["periodical_samples"])
+    assert dump["bounds"] == original_dump["bounds"]
+    assert provenance.load(got) == provenance.load(run_dir)
+    doc = yaml.safe_load((tmp_path / "exported" / "protocol.yaml").read_text())
+    sizes = sum(p.stat().st_size for p in got.iterdir())
+    assert doc["bytes"] == sizes and doc["thinned"] == {}
     # the exported run is read like the original one
     (original,), (exported,) = load_runs(run_dir), load_runs(got)
     np.testing.assert_array_equal(original.metrics["mean_return"], exported.metrics["mean_return"])

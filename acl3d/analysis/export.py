@@ -1,10 +1,12 @@
 """A finished campaign's runs in the compact form committed as reference results.
 
 Per run (see `acl3d.results`): the config without local paths plus the task space, evaluations
-overall and per test task, the test set once, and the training episodes summarised in
-`SUMMARY_WINDOWS` windows of the budget; no models, checkpoints or TensorBoard logs (a 1M-step
-run's export is ~20 kB instead of megabytes). `protocol.yaml` records the campaign spec, the
-hardware and the software versions of the runs.
+overall and per test task, the test set once, the training episodes summarised in
+`SUMMARY_WINDOWS` windows of the budget, and what lets others check the curriculum
+(`acl3d.analysis.curriculum_files`: every episode in episodes.npz, the teacher's dump in
+teacher.json/.npz, each within a byte budget) with the run's provenance.json; no models,
+checkpoints or TensorBoard logs. `protocol.yaml` records the campaign spec, the hardware and
+software versions of the runs, and the bytes shipped.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from acl3d import provenance
+from acl3d.analysis.curriculum_files import shipped_bytes, write_episodes, write_teacher
 from acl3d.analysis.runs import load_runs
 
 SUMMARY_WINDOWS = 20
@@ -96,12 +100,17 @@ def _episodes_summary(run: Path, steps: int, dest: Path) -> None:
     _write_rows(dest / "episodes_summary.csv", header, out)
 
 
-def _cpu_model() -> str:
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        return "unknown"
-    return next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), "?")
+def _curriculum_files(run: Path, dest: Path) -> dict[str, dict]:
+    """Episodes, teacher dump and provenance of `run` into `dest`; {name: strides} where a
+    budget thinned a file (every k-th episode or history entry kept)."""
+    if (run / provenance.FILE).exists():
+        shutil.copyfile(run / provenance.FILE, dest / provenance.FILE)
+    strides = {}
+    for label, written in (("episodes", write_episodes(run, dest)),
+                           ("teacher", write_teacher(run, dest))):  # fmt: skip
+        if written is not None and written["every"] > 1:
+            strides[label] = written["every"]
+    return {dest.name: strides} if strides else {}
 
 
 def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
@@ -120,7 +129,7 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
     if out.exists():
         shutil.rmtree(out)  # an export replaces the previous one of that protocol as a whole
     out.mkdir(parents=True)
-    environments = []
+    environments, thinned = [], {}
     for run in finished:
         dest = out / run.path.name
         dest.mkdir()
@@ -132,6 +141,7 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         _eval_tasks(run.path, dest)
         steps = int(config.get("resolved", {}).get("steps") or config["config"]["steps"])
         _episodes_summary(run.path, steps, dest)
+        thinned.update(_curriculum_files(run.path, dest))
     manifest = next(root.rglob("campaign.yaml"), None)
     spec = (yaml.safe_load(manifest.read_text()) or {}).get("spec") if manifest else None
     doc = {
@@ -142,10 +152,12 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         "hardware": {
             "platform": sorted({e.get("platform", "?") for e in environments}),
             "python": sorted({e.get("python", "?") for e in environments}),
-            "exported_on": {"cpus": os.cpu_count(), "cpu_model": _cpu_model()},
+            "exported_on": {"cpus": os.cpu_count(), "cpu_model": provenance.cpu_model()},
         },
         "packages": environments[0].get("packages", {}),
         "git_commits": sorted({str(e.get("git_commit")) for e in environments}),
+        "bytes": shipped_bytes(out),  # the runs' files, before this one
+        "thinned": thinned,
         "spec": spec,
     }
     (out / "protocol.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))

@@ -5,7 +5,9 @@ exported) and one folder per run (`<teacher>__s<seed>/`): `config.yaml` (the run
 effective student hyper-parameters and task space), `evals.csv` (% mastered and mean return at
 every evaluation), `evals_tasks.csv` (return, length and success of every test task at every
 evaluation), `test_set.csv` (the test tasks), `episodes_summary.csv` (training episodes in 20
-windows of the budget: count, return, length, success, mean task) and `status.json`. No models.
+windows of the budget: count, return, length, success, mean task) and `status.json`; protocols
+exported since v2 add `episodes.npz` (every training episode), `teacher.json`/`teacher.npz` (the
+teacher's dump) and `provenance.json` (`acl3d.analysis.curriculum_files`). No models.
 `acl3d campaign export` writes this form; `acl3d analyze RUNS --reference <protocol>` reads it.
 This package holds data only: it imports nothing from acl3d.
 """

@@ -1,0 +1,181 @@
+"""The files of an exported run that let others check its curriculum, each within a byte budget.
+
+`episodes.npz` holds every training episode (compressed columns: `step` int32, `return`
+float32, `length` int32, `success` and `truncated` bool, `task` float32 (n, dim), `task_names`),
+so the tasks a teacher chose and how the student did on them can be followed episode by
+episode. `teacher.json` + `teacher.npz` hold the teacher's dump (`Controller.dump`) in the
+format `acl3d.teachers.base.load_state` reads: the task space, the periodical samples of its
+task distribution and its book-keeping history (`teacher_bk`: the mixtures, regions, boxes from
+which `Teacher.plot_history` rebuilds its states), floats in float32, compressed; its copies of
+the episodes and test results (shipped in episodes.npz and evals_tasks.csv) are left out.
+
+A run whose file would exceed its budget keeps every k-th episode (every k-th entry of each
+history list), the smallest k that fits; `every` in the file says which k (1: all kept), and
+`episodes` how many the run played. The budgets keep a 20M-step campaign of ~150 runs under
+~30 MB (docs/results.md, "Size budget").
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from acl3d.run_format import layout
+from acl3d.run_format.tables import read_csv
+from acl3d.teachers.base import load_state, save_state
+
+EPISODES_FILE = "episodes.npz"
+EPISODES_BUDGET = 160_000  # bytes of episodes.npz per run
+TEACHER_BUDGET = 48_000  # bytes of teacher.json + teacher.npz per run
+EPISODE_LOG_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
+# The dump's records shipped in other files: the played episodes (episodes.npz), the tasks drawn
+# for them, and the test episodes (evals_tasks.csv).
+DUPLICATED_RECORDS = (
+    "sampled_tasks", "train_tasks", "train_returns", "train_lengths", "train_success",
+    "test_played_tasks", "test_returns", "test_lengths", "test_success",
+)  # fmt: skip
+
+
+def episode_columns(log: dict[str, list[float]]) -> dict[str, np.ndarray]:
+    """The compact columns of an episode log read by `read_csv`."""
+    names = [c for c in log if c not in EPISODE_LOG_COLUMNS]
+    n = len(log.get("step", []))
+    return {
+        "step": np.asarray(log.get("step", []), dtype=np.int32),
+        "return": np.asarray(log.get("return", []), dtype=np.float32),
+        "length": np.asarray(log.get("length", []), dtype=np.int32),
+        "success": np.asarray(log.get("success", []), dtype=bool),
+        "truncated": np.asarray(log.get("truncated", [0] * n), dtype=bool),
+        "task": np.column_stack([np.asarray(log[c], np.float32) for c in names]).reshape(n, -1),
+        "task_names": np.asarray(names, dtype=str),
+    }
+
+
+def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def _thinned(size, budget: int, write):
+    """(every, result) of `write(every)` -> (result, bytes) for the smallest stride every >= 1
+    whose bytes fit `budget` (the last stride tried when even one entry does not fit)."""
+    every = 1
+    while True:
+        result, used = write(every)
+        if used <= budget or every >= size:
+            return every, result
+        every = max(every + 1, math.ceil(every * used / budget))
+
+
+def write_episodes(run: Path, dest: Path, budget: int = EPISODES_BUDGET) -> dict | None:
+    """DEST/episodes.npz from RUN/episodes.csv; {'episodes', 'every', 'bytes'}, or None for a
+    run without an episode log."""
+    log_path = Path(run) / layout.EPISODES
+    if not log_path.exists():
+        return None
+    columns = episode_columns(read_csv(log_path, strict=True))
+    n = len(columns["step"])
+
+    def write(every: int):
+        kept = {k: v if k == "task_names" else v[::every] for k, v in columns.items()}
+        data = _npz_bytes({**kept, "every": np.int32(every), "episodes": np.int64(n)})
+        return data, len(data)
+
+    every, data = _thinned(n, budget, write)
+    (Path(dest) / EPISODES_FILE).write_bytes(data)
+    return {"episodes": n, "every": every, "bytes": len(data)}
+
+
+def read_episodes(run) -> dict[str, np.ndarray]:
+    """The training episodes of an exported run (episodes.npz) or of a run directory
+    (episodes.csv), as `episode_columns`; an exported one adds `every` and `episodes`."""
+    run = Path(run)
+    if (run / EPISODES_FILE).exists():
+        with np.load(run / EPISODES_FILE, allow_pickle=False) as data:
+            return {k: data[k] for k in data.files}
+    if (run / layout.EPISODES).exists():
+        return episode_columns(read_csv(run / layout.EPISODES, strict=True))
+    raise ValueError(f"{str(run)!r} holds neither {EPISODES_FILE} nor {layout.EPISODES}")
+
+
+def _compact(value):
+    """Floats in float32, integers in int32 where they fit, everywhere in a dump's tree."""
+    if isinstance(value, dict):
+        return {k: _compact(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_compact(v) for v in value]
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind == "f":
+            return value.astype(np.float32)
+        if value.dtype.kind in "iu" and (value.size == 0 or np.abs(value).max() < 2**31):
+            return value.astype(np.int32)
+    return value
+
+
+def _histories(dump: dict) -> dict[str, list | np.ndarray]:
+    """The sequences that grow with training: the periodical samples and each list (one entry
+    per refit, per episode, ...) of the teacher's book-keeping, by path."""
+    out = {k: dump[k] for k in ("periodical_samples", "periodical_steps") if k in dump}
+    for key, value in (dump.get("teacher_bk") or {}).items():
+        if isinstance(value, (list, np.ndarray)):
+            out[f"teacher_bk/{key}"] = value
+    return out
+
+
+def _saved_files(tree: dict) -> tuple[bytes, bytes]:
+    """(json, compressed npz) bytes of `save_state(tree)`."""
+    with tempfile.TemporaryDirectory() as tmp:
+        prefix = Path(tmp) / layout.TEACHER
+        save_state(prefix, tree)
+        with np.load(prefix.with_suffix(".npz"), allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        return prefix.with_suffix(".json").read_bytes(), _npz_bytes(arrays)
+
+
+def write_teacher(run: Path, dest: Path, budget: int = TEACHER_BUDGET) -> dict | None:
+    """DEST/teacher.json + teacher.npz, the compact dump of RUN's teacher; {'every', 'bytes',
+    'left_out'}, or None for a run without a dump."""
+    prefix = Path(run) / layout.TEACHER
+    if not prefix.with_suffix(".json").exists():
+        return None
+    try:
+        dump = load_state(prefix)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{prefix}.json/.npz cannot be read: {exc}") from None
+    left_out = sorted(k for k in DUPLICATED_RECORDS if k in dump)
+    kept = _compact({k: v for k, v in dump.items() if k not in DUPLICATED_RECORDS})
+    histories = _histories(kept)
+
+    def write(every: int):
+        tree = {**kept, "teacher_bk": dict(kept.get("teacher_bk") or {})}
+        for path, sequence in histories.items():
+            parent, _, key = path.rpartition("/")
+            (tree[parent] if parent else tree)[key] = sequence[::every]
+        tree.update(every=every, left_out=left_out, format="acl3d-teacher-export-1")
+        files = _saved_files(tree)
+        return files, sum(len(f) for f in files)
+
+    longest = max([len(v) for v in histories.values()] or [1])
+    every, (text, arrays) = _thinned(longest, budget, write)
+    (Path(dest) / f"{layout.TEACHER}.json").write_bytes(text)
+    (Path(dest) / f"{layout.TEACHER}.npz").write_bytes(arrays)
+    return {"every": every, "bytes": len(text) + len(arrays), "left_out": left_out}
+
+
+def read_teacher(run) -> dict:
+    """An exported run's teacher dump (or a run directory's full one) as `load_state` gives it."""
+    prefix = Path(run) / layout.TEACHER
+    if not prefix.with_suffix(".json").exists():
+        raise ValueError(f"{str(run)!r} holds no {layout.TEACHER}.json")
+    return load_state(prefix)
+
+
+def shipped_bytes(folder) -> int:
+    """Bytes of every file under `folder` (the size budget's measure)."""
+    return sum(p.stat().st_size for p in Path(folder).rglob("*") if p.is_file())
