@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from acl3d.campaign import CampaignDir, CampaignSpec, load_spec, run_campaign
 from acl3d.campaign.attempt import run_attempt
@@ -174,3 +175,54 @@ def test_out_at_or_under_a_file_is_one_line(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "cannot be created" in err and len(err.strip().splitlines()) == 1
     assert a_file.read_text() == "x"
+
+
+@pytest.mark.parametrize(
+    "sets, message",
+    [
+        (['env_kwargs={"bogus": 1}'], "env_kwargs['bogus']=1; valid: keyword arguments"),
+        (['test_set="missing.json"'], "test_set='missing.json': no such file"),
+        (['bounds={"stump_height": [3, 1]}'], "min <= max"),
+        (['bounds={"stump_height": [0, 100]}'], "stump-tracks can build"),
+    ],
+)
+def test_values_only_the_environment_checks_are_refused_before_anything_is_written(
+    sets, message, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "camp"
+    argv = ["campaign", "run", "quick", "--out", str(out), "--executor", "local"]
+    assert main([*argv, *(x for item in sets for x in ("--set", item))]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "error: run random__s0: " in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_spec_mistakes_are_one_line_before_anything_is_written(tmp_path, capsys):
+    long_label = "a" * 300
+    specs = {
+        "exclude.yaml": ({"name": "x", "grid": {"teacher": ["random"]}, "exclude": 5}, []),
+        "budget.yaml": (
+            {"name": "x", "base": {"steps": 4096}, "grid": {"teacher": ["random"]}},
+            ["--budget", "1e306"],
+        ),
+        "nosteps.yaml": ({"name": "x", "grid": {"teacher": ["random"]}}, []),
+        "long.yaml": (
+            {"name": "x", "base": {"steps": 4096}, "grid": {"criterion": {long_label: {}}}},
+            [],
+        ),
+    }
+    messages = {
+        "exclude.yaml": "exclude: expected a list of mappings, got 5",
+        "budget.yaml": "budget=1e+306: steps=4096 x budget is not a finite number",
+        "nosteps.yaml": "runs ['s0'] set no steps",
+        "long.yaml": "run name='aaa",
+    }
+    for name, (doc, extra) in specs.items():
+        spec = tmp_path / name
+        spec.write_text(yaml.safe_dump(doc))
+        out = tmp_path / f"camp_{name}"
+        assert main(["campaign", "run", str(spec), "--out", str(out), *extra]) == 2
+        err = capsys.readouterr().err
+        assert messages[name] in err and len(err.strip().splitlines()) == 1, err
+        assert not out.exists()

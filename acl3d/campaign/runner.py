@@ -149,6 +149,9 @@ def run_campaign(
         raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
     check_executor(executor, max_parallel, address)
     runs = spec.expand()
+    unsized = [r.name for r in runs if "steps" not in r.options]
+    if unsized:  # a campaign tells its finished runs by their steps
+        raise ValueError(f"spec {spec.name!r}: runs {unsized[:3]} set no steps (base.steps)")
     check_runs(runs, on_this_machine=address is None)  # a cluster's nodes check their own bounds
     check_environments(runs)
     cpus = {cpus_of(r.options) for r in runs}
