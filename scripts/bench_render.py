@@ -1,10 +1,11 @@
-"""Rendering speed at 640x480 (fast preset) and what labels and video files add, in one run.
+"""Rendering speed at 640x480 and what labels and video files add, in one run.
 
 Every row is measured in this run on the same env and the same random actions (in interleaved
 rounds, keeping each row's best), and printed with its ratio to plain step + render, so the
 overlay's cost reads as a share of a frame:
 
     python scripts/bench_render.py [--frames 400] [--width 640 --height 480]
+    python scripts/bench_render.py --env terrain3d --quality high
 
 Rows: render only; step + render; step + render + label (acl3d.overlay); the label alone;
 step + render + label + H.264 encoding (what `acl3d render` does per frame).
@@ -21,10 +22,21 @@ import gymnasium as gym
 import numpy as np
 
 import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
+from acl3d.envs import ENV_IDS
 from acl3d.overlay import draw_label, episode_lines
 from acl3d.video import VideoSink
 
-TASK = {"stump_height": 1.0, "obstacle_spacing": 3.0}
+TASKS = {  # a hard task of each: blocks, twist, hills and bumps in view on 3D Terrain
+    "stump-tracks": {"stump_height": 1.0, "obstacle_spacing": 3.0},
+    "terrain3d": {
+        "block_height": 0.6,
+        "block_width": 0.4,
+        "block_spacing": 2.0,
+        "cross_slope": 12.0,
+        "hill_slope": 8.0,
+        "roughness": 0.1,
+    },
+}
 
 
 def _timed(frames: int, per_frame) -> float:
@@ -44,17 +56,25 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=6)
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
+    p.add_argument("--env", choices=sorted(TASKS), default="stump-tracks")
+    p.add_argument("--quality", choices=("fast", "high"), default="fast")
     args = p.parse_args()
+    task = TASKS[args.env]
     env = gym.make(
-        "acl3d/StumpTracks-v0", render_mode="rgb_array", width=args.width, height=args.height
+        ENV_IDS[args.env],
+        render_mode="rgb_array",
+        width=args.width,
+        height=args.height,
+        quality=args.quality,
     )
-    env.reset(seed=0, options={"task": TASK})
+    env.reset(seed=0, options={"task": task})
     rng = np.random.default_rng(0)
-    lines = episode_lines("run (alp-gmm)", TASK, 123, 45.6)
+    lines = episode_lines("run (alp-gmm)", task, 123, 45.6)
     frame = env.render()
 
     def step(_):
-        _, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 4))
+        action = rng.uniform(-1, 1, env.action_space.shape)
+        _, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             env.reset()
 
@@ -87,7 +107,10 @@ def main() -> None:
         sink.close()
     env.close()
     base = rows[1][1]
-    print(f"{args.width}x{args.height}, fast preset, MUJOCO_GL={os.environ.get('MUJOCO_GL')}")
+    print(
+        f"{args.env}, {args.width}x{args.height}, {args.quality} preset, "
+        f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}"
+    )
     for name, fps in rows:
         print(f"{name:30s} {fps:9.1f} fps  {1e3 / fps:7.3f} ms/frame  {fps / base:5.2f}x")
     label_ms = 1e3 / rows[2][1] - 1e3 / rows[1][1]

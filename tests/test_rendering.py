@@ -106,6 +106,34 @@ def test_render_follows_the_walker_and_sees_new_terrain():
     assert not np.array_equal(start, stumps)
 
 
+def test_terrain3d_renders_its_relief_by_default():
+    """The fast preset on 3D Terrain: a camera looking down on the field, a checkered ground and
+    the walker's shadow on it; the tracks' fast frames cast no shadow (their cost unchanged)."""
+    import mujoco
+
+    require_offscreen_gl()
+    env = gym.make("acl3d/Terrain3D-v0", render_mode="rgb_array", width=160, height=120)
+    env.reset(seed=0)
+    u = env.unwrapped
+    lit = env.render().astype(int)
+    cam = mujoco.mj_name2id(u.model, mujoco.mjtObj.mjOBJ_CAMERA, u.arena.camera)
+    view = -u.data.cam_xmat[cam].reshape(3, 3)[:, 2]  # MuJoCo's cameras look along their -z
+    assert view[2] < -np.sin(np.radians(25))  # looks down on the field, not along it
+    field = u.model.material("field").id
+    assert u.model.geom_matid[u.model.geom("terrain").id] == field
+    assert u.model.mat_texid[field].max() >= 0  # textured in the fast preset
+    u.model.light_castshadow[:] = False
+    unlit = env.render().astype(int)
+    env.close()
+    shadowed = (lit.sum(axis=2) < unlit.sum(axis=2) - 60).mean()
+    assert shadowed > 0.003, f"{shadowed:.4f} of the frame in shadow"  # ~0.007: the walker's
+    tracks = gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", width=32, height=24)
+    tracks.reset(seed=0)
+    tracks.render()
+    assert not tracks.unwrapped.model.light_castshadow.any()
+    tracks.close()
+
+
 def test_bad_render_arguments():
     with pytest.raises(ValueError, match="quality"):
         gym.make("acl3d/StumpTracks-v0", render_mode="rgb_array", quality="ultra")

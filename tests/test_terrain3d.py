@@ -55,7 +55,24 @@ def test_narrow_blocks_leave_room_to_walk_around_and_slopes_vary_across_the_fiel
     assert 0.25 < covered[covered > 0].mean() < 0.35  # 30% of the width per row of blocks
     twisted = gen.heights({"cross_slope": 20.0}, np.random.default_rng(1))
     across = np.diff(twisted, axis=0)  # height change from one row (y) to the next
-    assert np.abs(across).max() == pytest.approx(np.tan(np.radians(20.0)) * gen.grid.cell, rel=0.01)
+    slope = np.tan(np.radians(20.0))
+    assert np.abs(across).max() == pytest.approx(slope * gen.grid.row_cell, rel=0.01)
+
+
+def test_blocks_keep_their_shape_on_the_grid():
+    """A 0.5 m block is a block: flat on top over at least 0.4 m of its length, its front and
+    back faces each rising within one 0.1 m cell (a wedge on 0.2 m cells had 0.2 m of top)."""
+    gen = Terrain3DGenerator(start_pad=4.0)
+    task = {"block_height": 1.0, "block_width": 1.0, "block_spacing": 3.0}
+    h = gen.heights(task, np.random.default_rng(3))[0]  # flat ground: one row tells all
+    raised = np.flatnonzero(h > 0)
+    starts = raised[np.r_[True, np.diff(raised) > 1]]
+    ends = raised[np.r_[np.diff(raised) > 1, True]]
+    assert len(starts) == 6  # 1 m after the pad, then every 3.5 m of the 20 m course
+    for first, last in zip(starts, ends):
+        top = gen.grid.x[last] - gen.grid.x[first]  # the top's length (linear between points)
+        assert 0.4 - 1e-9 <= top <= 0.5 and gen.grid.cell == pytest.approx(0.1)
+        assert h[first - 1] == 0 and h[last + 1] == 0  # ground one cell before and after
 
 
 def test_the_hardest_buildable_task_fits_the_heightfield_range():
@@ -118,7 +135,8 @@ def test_other_walkers_run_on_the_field(body):
         touched += any(terrain in (c.geom1, c.geom2) for c in contacts)
         x, y, z = u.data.xpos[root]
         assert grid.x_min < x < grid.x_max and abs(y) < grid.half_width
-        row, col = round((y + grid.half_width) / grid.cell), round((x - grid.x_min) / grid.cell)
+        row = round((y + grid.half_width) / grid.row_cell)
+        col = round((x - grid.x_min) / grid.cell)
         assert z > u.arena.heights[row, col], f"{body}'s root below the ground at x={x:.2f}"
         if terminated:
             break
@@ -210,7 +228,7 @@ def test_height_scan_reads_the_terrain_around_the_body_in_its_heading_frame():
         dx, dy = np.meshgrid(FORWARD, LATERAL)
         px = origin[0] + np.cos(yaw) * dx - np.sin(yaw) * dy
         py = origin[1] + np.sin(yaw) * dx + np.cos(yaw) * dy
-        u, v = (px - g.x_min) / g.cell, (py + g.half_width) / g.cell
+        u, v = (px - g.x_min) / g.cell, (py + g.half_width) / g.row_cell
         i, j = np.floor(u).astype(int), np.floor(v).astype(int)
         a, b = u - i, v - j
         expected = (

@@ -41,8 +41,11 @@ class HeightScan:
         y_min = -TRACK_HALF_WIDTH if line else -g.half_width
         self._shape = (2, g.ncol) if line else np.shape(arena.heights)
         dx, dy = np.meshgrid(np.asarray(forward, float), np.asarray(lateral, float))
-        self._inv_cell = 1.0 / float(g.cell)
-        # a point's offset in grid cells, (row, column) = (y, x), turned by the heading yaw:
+        # metres -> grid cells, (row, column) = (y, x); a field's rows may lie further apart
+        # than its columns (a track's two rows are equal: any row spacing reads the same)
+        row_cell = g.cell if line else 2 * g.half_width / (self._shape[0] - 1)
+        self._inv_cell = 1.0 / np.array([[row_cell], [g.cell]])
+        # a point's offset in grid cells, turned by the heading yaw:
         # cos(yaw) * (dy, dx) + sin(yaw) * (dx, -dy)
         self._cos_part = np.stack((dy.ravel(), dx.ravel())) * self._inv_cell
         self._sin_part = np.stack((dx.ravel(), -dy.ravel())) * self._inv_cell
@@ -66,7 +69,7 @@ class HeightScan:
         """
         a, b = rotations[:, 0], rotations[:, 3]
         norm = np.maximum(np.hypot(a, b), MIN_NORM)
-        shift = (origins[:, 1::-1] - self._min) * self._inv_cell  # (N, 2): (row, column)
+        shift = (origins[:, 1::-1] - self._min) * self._inv_cell[:, 0]  # (N, 2): (row, column)
         coords = (
             (a / norm)[:, None, None] * self._cos_part
             + (b / norm)[:, None, None] * self._sin_part

@@ -18,7 +18,11 @@ import numpy as np
 from acl3d import validation
 from acl3d.task_space import TaskParameter, TaskSpace
 
-CELL = 0.2  # metres between heightfield points, along x and y (0.1 m doubled the contact cost)
+# Metres between heightfield points along x (columns) and across y (rows). A block's faces are
+# ramps one cell long: 0.1 m along x keeps a 0.5 m block a block (at 0.2 m it was a wedge,
+# 0.2 m of flat top between two 0.2 m ramps); 0.1 m across too would cost another ~15% of a step.
+CELL = 0.1
+ROW_CELL = 0.2
 FIELD_HALF_WIDTH = 3.0  # metres: the field spans y in [-3, 3]; leaving it ends the episode
 COURSE_LENGTH = 20.0  # metres of terrain from the end of the start pad to the finish line
 RUN_OUT = 5.0  # metres of field after the finish line
@@ -105,12 +109,14 @@ def check_buildable(task: Mapping[str, object]) -> None:
 
 @dataclass(frozen=True)
 class FieldGrid:
-    """Where the heightfield's points lie: columns along x, rows along y, `CELL` apart."""
+    """Where the heightfield's points lie: columns along x `cell` apart, rows along y
+    `row_cell` apart."""
 
     x_min: float
     ncol: int
-    nrow: int = int(round(2 * FIELD_HALF_WIDTH / CELL)) + 1
+    nrow: int = int(round(2 * FIELD_HALF_WIDTH / ROW_CELL)) + 1
     cell: float = CELL
+    row_cell: float = ROW_CELL
 
     @classmethod
     def spanning(cls, x_min: float, x_max: float) -> FieldGrid:
@@ -122,7 +128,7 @@ class FieldGrid:
 
     @property
     def half_width(self) -> float:
-        return (self.nrow - 1) * self.cell / 2
+        return (self.nrow - 1) * self.row_cell / 2
 
     @property
     def x(self) -> np.ndarray:
@@ -130,7 +136,7 @@ class FieldGrid:
 
     @property
     def y(self) -> np.ndarray:
-        return -self.half_width + self.cell * np.arange(self.nrow)
+        return -self.half_width + self.row_cell * np.arange(self.nrow)
 
 
 def start_pad_for(body_length: float) -> float:
@@ -203,7 +209,7 @@ class Terrain3DGenerator:
             centre = rng.uniform(-g.half_width + width / 2, g.half_width - width / 2)
             cols = _points(g.x_min, g.cell, g.ncol, x, x + BLOCK_LENGTH, closed=False)
             lo, hi = centre - width / 2, centre + width / 2
-            rows = _points(-g.half_width, g.cell, g.nrow, lo, hi, closed=True)
+            rows = _points(-g.half_width, g.row_cell, g.nrow, lo, hi, closed=True)
             h[rows, cols] += height
             x += BLOCK_LENGTH + p["block_spacing"]
 
