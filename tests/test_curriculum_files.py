@@ -8,10 +8,13 @@ import csv
 import numpy as np
 import pytest
 
+from acl3d import results
 from acl3d.analysis.curriculum_files import (
     EPISODES_FILE,
+    RESULTS_BUDGET,
     read_episodes,
     read_teacher,
+    shipped_bytes,
     write_episodes,
     write_teacher,
 )
@@ -88,6 +91,11 @@ def _dump(run, fits: int, episodes: int) -> None:
             "periodical_samples": [rng.random((100, 2)) for _ in range(20)],
             "periodical_steps": np.arange(20, dtype=np.int64) * 100_000,
             "teacher_bk": {
+                # one entry per episode, as ALP-GMM's (task, ALP) pairs
+                "tasks_alps": [
+                    rng.random(3).round(4).tolist() for _ in range(episodes)
+                ],  # fmt: skip
+                # one entry per refit
                 "weights": [rng.dirichlet(np.ones(4)) for _ in range(fits)],
                 "means": [rng.random((4, 2)) for _ in range(fits)],
                 "covariances": [rng.random((4, 2, 2)) for _ in range(fits)],
@@ -97,25 +105,37 @@ def _dump(run, fits: int, episodes: int) -> None:
     )
 
 
-@pytest.mark.parametrize(("fits", "budget", "thinned"), [(10, 48_000, False), (400, 16_000, True)])
-def test_teacher_dump_without_duplicates_within_budget(tmp_path, fits, budget, thinned):
+@pytest.mark.parametrize(("episodes", "budget"), [(300, 48_000), (6000, 32_000)])
+def test_teacher_dump_without_duplicates_within_budget(tmp_path, episodes, budget):
     run, dest = tmp_path / "run", tmp_path / "out"
     run.mkdir()
     dest.mkdir()
-    _dump(run, fits, episodes=5000)
+    _dump(run, 40, episodes)
     written = write_teacher(run, dest, budget)
     sizes = sum((dest / f"teacher.{ext}").stat().st_size for ext in ("json", "npz"))
     assert written["bytes"] == sizes <= budget
     got = read_teacher(dest)  # load_state's format, as the run directory's dump
     for key in ("sampled_tasks", "train_tasks", "train_returns", "test_returns"):
         assert key not in got and key in got["left_out"]
-    every = got["every"]
-    assert (every > 1) == thinned and every == written["every"]
+    assert got["every"] == written["every"]
     bk = got["teacher_bk"]
-    # the history lists stay aligned: entry i of each is the same refit
-    assert len(bk["means"]) == len(bk["weights"]) == len(bk["episodes"]) == -(-fits // every)
-    assert bk["episodes"] == [150 * (i + 1) for i in range(0, fits, every)]
+    if episodes == 300:
+        assert got["every"] == {} and len(bk["tasks_alps"]) == 300
+    else:  # the per-episode list is thinned, every k-th entry kept
+        every = got["every"]["teacher_bk/tasks_alps"]
+        assert set(got["every"]) == {"teacher_bk/tasks_alps"} and every > 1
+        assert len(bk["tasks_alps"]) == -(-episodes // every)
+        original = read_teacher(run)["teacher_bk"]["tasks_alps"]
+        np.testing.assert_array_equal(bk["tasks_alps"][1], np.float32(original[every]))
+    # the refits' lists are kept whole and aligned: entry i of each is the same refit
+    assert len(bk["means"]) == len(bk["weights"]) == len(bk["covariances"]) == 40
+    assert bk["episodes"].tolist() == [150 * (i + 1) for i in range(40)]  # numbers: an array
     assert bk["means"][0].dtype == np.float32 and got["low"].dtype == np.float32
-    assert len(got["periodical_samples"]) == len(got["periodical_steps"]) == -(-20 // every)
+    assert len(got["periodical_samples"]) == len(got["periodical_steps"]) == 20
     assert got["bounds"] == {"stump_height": [0.0, 3.0], "obstacle_spacing": [0.0, 6.0]}
     assert write_teacher(tmp_path / "none", dest) is None
+
+
+def test_the_shipped_results_stay_within_their_budget():
+    total = sum(shipped_bytes(results.path(name)) for name in results.protocols())
+    assert 0 < total < RESULTS_BUDGET

@@ -4,14 +4,16 @@
 float32, `length` int32, `success` and `truncated` bool, `task` float32 (n, dim), `task_names`),
 so the tasks a teacher chose and how the student did on them can be followed episode by
 episode. `teacher.json` + `teacher.npz` hold the teacher's dump (`Controller.dump`) in the
-format `acl3d.teachers.base.load_state` reads: the task space, the periodical samples of its
-task distribution and its book-keeping history (`teacher_bk`: the mixtures, regions, boxes from
+format `acl3d.teachers.base.load_state` reads (`read_teacher` unpacks its histories, each
+stored as one array): the task space, the periodical samples of its task distribution and its
+book-keeping history (`teacher_bk`: the mixtures, regions, boxes from
 which `Teacher.plot_history` rebuilds its states), floats in float32, compressed; its copies of
 the episodes and test results (shipped in episodes.npz and evals_tasks.csv) are left out.
 
-A run whose file would exceed its budget keeps every k-th episode (every k-th entry of each
-history list), the smallest k that fits; `every` in the file says which k (1: all kept), and
-`episodes` how many the run played. The budgets keep a 20M-step campaign of ~150 runs under
+A run whose file would exceed its budget keeps every k-th episode, the smallest k that fits
+(`every` in episodes.npz, 1: all kept; `episodes`: how many the run played); the teacher's
+histories keep at most as many entries each as fit, every k-th of a longer one (`every` in
+teacher.json: {path: k} of the thinned ones). The budgets keep a 20M-step campaign of ~150 runs under
 ~30 MB (docs/results.md, "Size budget").
 """
 
@@ -30,8 +32,9 @@ from acl3d.run_format.tables import read_csv
 from acl3d.teachers.base import load_state, save_state
 
 EPISODES_FILE = "episodes.npz"
-EPISODES_BUDGET = 160_000  # bytes of episodes.npz per run
-TEACHER_BUDGET = 48_000  # bytes of teacher.json + teacher.npz per run
+EPISODES_BUDGET = 96_000  # bytes of episodes.npz per run
+TEACHER_BUDGET = 40_000  # bytes of teacher.json + teacher.npz per run
+RESULTS_BUDGET = 30_000_000  # bytes of every shipped protocol together (acl3d/results)
 EPISODE_LOG_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
 # The dump's records shipped in other files: the played episodes (episodes.npz), the tasks drawn
 # for them, and the test episodes (evals_tasks.csv).
@@ -118,6 +121,36 @@ def _compact(value):
     return value
 
 
+def _packed(sequence):
+    """A history list of arrays (or of number lists) as one {'ragged': the entries concatenated,
+    'offsets'} pair, one npz entry instead of one per refit (each costs ~200 bytes of headers),
+    and a list of numbers as a 1-D array (JSON spends ~19 bytes on a float); other values as
+    they are. `read_teacher` unpacks the pairs into lists of arrays."""
+    if not isinstance(sequence, list) or not sequence:
+        return sequence
+    try:
+        items = [np.asarray(v) for v in sequence]
+    except ValueError:  # ragged nested lists
+        return sequence
+    if any(a.dtype.kind not in "biuf" for a in items):
+        return sequence
+    if all(a.ndim == 0 for a in items):  # one number per entry (an ALP, an origin)
+        return _compact(np.asarray(items))
+    if any(a.ndim == 0 for a in items) or len({a.shape[1:] for a in items}) != 1:
+        return sequence
+    offsets = np.cumsum([0, *(len(a) for a in items)])
+    return _compact({"ragged": np.concatenate(items), "offsets": offsets})
+
+
+def _unpacked(value):
+    if isinstance(value, dict):
+        if set(value) == {"ragged", "offsets"}:
+            bounds = np.asarray(value["offsets"])
+            return [value["ragged"][a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+        return {k: _unpacked(v) for k, v in value.items()}
+    return value
+
+
 def _histories(dump: dict) -> dict[str, list | np.ndarray]:
     """The sequences that grow with training: the periodical samples and each list (one entry
     per refit, per episode, ...) of the teacher's book-keeping, by path."""
@@ -139,8 +172,10 @@ def _saved_files(tree: dict) -> tuple[bytes, bytes]:
 
 
 def write_teacher(run: Path, dest: Path, budget: int = TEACHER_BUDGET) -> dict | None:
-    """DEST/teacher.json + teacher.npz, the compact dump of RUN's teacher; {'every', 'bytes',
-    'left_out'}, or None for a run without a dump."""
+    """DEST/teacher.json + teacher.npz, the compact dump of RUN's teacher; {'every': {path:
+    stride} of the thinned sequences, 'bytes', 'left_out'}, or None for a run without a dump.
+    Thinning caps the entries kept per sequence, so the longest (per-episode) lists lose
+    entries first and the short ones (one entry per refit) keep them all while they fit."""
     prefix = Path(run) / layout.TEACHER
     if not prefix.with_suffix(".json").exists():
         return None
@@ -152,28 +187,33 @@ def write_teacher(run: Path, dest: Path, budget: int = TEACHER_BUDGET) -> dict |
     kept = _compact({k: v for k, v in dump.items() if k not in DUPLICATED_RECORDS})
     histories = _histories(kept)
 
+    longest = max([len(v) for v in histories.values()] or [1])
+
     def write(every: int):
+        cap = -(-longest // every)  # entries kept per sequence; sequences of a length stay aligned
+        strides = {path: -(-len(sequence) // cap) for path, sequence in histories.items()}
         tree = {**kept, "teacher_bk": dict(kept.get("teacher_bk") or {})}
         for path, sequence in histories.items():
             parent, _, key = path.rpartition("/")
-            (tree[parent] if parent else tree)[key] = sequence[::every]
-        tree.update(every=every, left_out=left_out, format="acl3d-teacher-export-1")
+            (tree[parent] if parent else tree)[key] = _packed(sequence[:: strides[path]])
+        thinned = {path: k for path, k in strides.items() if k > 1}
+        tree.update(every=thinned, left_out=left_out, format="acl3d-teacher-export-1")
         files = _saved_files(tree)
-        return files, sum(len(f) for f in files)
+        return (files, thinned), sum(len(f) for f in files)
 
-    longest = max([len(v) for v in histories.values()] or [1])
-    every, (text, arrays) = _thinned(longest, budget, write)
+    _, ((text, arrays), thinned) = _thinned(longest, budget, write)
     (Path(dest) / f"{layout.TEACHER}.json").write_bytes(text)
     (Path(dest) / f"{layout.TEACHER}.npz").write_bytes(arrays)
-    return {"every": every, "bytes": len(text) + len(arrays), "left_out": left_out}
+    return {"every": thinned, "bytes": len(text) + len(arrays), "left_out": left_out}
 
 
 def read_teacher(run) -> dict:
-    """An exported run's teacher dump (or a run directory's full one) as `load_state` gives it."""
+    """An exported run's teacher dump (or a run directory's full one) as `load_state` gives it,
+    its packed histories unpacked into lists of arrays."""
     prefix = Path(run) / layout.TEACHER
     if not prefix.with_suffix(".json").exists():
         raise ValueError(f"{str(run)!r} holds no {layout.TEACHER}.json")
-    return load_state(prefix)
+    return _unpacked(load_state(prefix))
 
 
 def shipped_bytes(folder) -> int:

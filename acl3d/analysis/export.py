@@ -102,14 +102,15 @@ def _episodes_summary(run: Path, steps: int, dest: Path) -> None:
 
 def _curriculum_files(run: Path, dest: Path) -> dict[str, dict]:
     """Episodes, teacher dump and provenance of `run` into `dest`; {name: strides} where a
-    budget thinned a file (every k-th episode or history entry kept)."""
+    budget thinned a file (every k-th episode kept; {path: k} of the teacher's histories)."""
     if (run / provenance.FILE).exists():
         shutil.copyfile(run / provenance.FILE, dest / provenance.FILE)
     strides = {}
-    for label, written in (("episodes", write_episodes(run, dest)),
-                           ("teacher", write_teacher(run, dest))):  # fmt: skip
-        if written is not None and written["every"] > 1:
-            strides[label] = written["every"]
+    episodes, teacher = write_episodes(run, dest), write_teacher(run, dest)
+    if episodes is not None and episodes["every"] > 1:
+        strides["episodes"] = episodes["every"]
+    if teacher is not None and teacher["every"]:
+        strides["teacher"] = teacher["every"]
     return {dest.name: strides} if strides else {}
 
 
