@@ -10,8 +10,10 @@ from matplotlib.figure import Figure
 
 from acl3d.analysis import stats
 from acl3d.analysis.compare import Comparison
+from acl3d.teachers.plots import teacher_color
 
 _METRIC_NAMES = {"mastered_pct": "% mastered test tasks", "mean_return": "mean test return"}
+_RANGES = {"mastered_pct": (0.0, 100.0), "P(improvement)": (0.0, 1.0)}  # what a metric can be
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -20,11 +22,25 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def _colors(teachers: list[str]) -> dict[str, tuple]:
-    from matplotlib import colormaps
+def _colors(teachers: list[str]) -> dict[str, str]:
+    return {t: teacher_color(t) for t in teachers}
 
-    cmap = colormaps["tab10"]
-    return {t: cmap(i % 10) for i, t in enumerate(teachers)}
+
+def _say_if_flat(ax, values, axis: str, metric: str, what: str) -> bool:
+    """When every value is the same, say so on the axes over the metric's natural range (or
+    +-1 around the value) instead of letting matplotlib zoom onto it (a flat line on a +-0.04
+    axis reads as noise around zero); True if it did."""
+    v = np.asarray([x for x in values if x is not None], float)
+    v = v[np.isfinite(v)]
+    if not len(v) or np.ptp(v) > 0:
+        return False
+    value = float(v[0])
+    low, high = _RANGES.get(metric, (value - 1.0, value + 1.0))
+    pad = 0.05 * (high - low)
+    (ax.set_ylim if axis == "y" else ax.set_xlim)(low - pad, high + pad)
+    ax.text(0.5, 0.5, what.format(value=value), transform=ax.transAxes, ha="center",
+            va="center", fontsize=9, bbox={"facecolor": "white", "edgecolor": "0.6"})  # fmt: skip
+    return True
 
 
 def curves(comp: Comparison, rows: list[dict], path: Path) -> Path:
@@ -52,6 +68,10 @@ def curves(comp: Comparison, rows: list[dict], path: Path) -> Path:
             )
             ax.fill_between(x, [p["low"] for p in pts], [p["high"] for p in pts],
                             color=colors[teacher], alpha=0.2, linewidth=0)  # fmt: skip
+        panel = [r[k] for r in rows if r["task"] == task for k in ("mean", "low", "high")]
+        name = _METRIC_NAMES.get(comp.metric, comp.metric)
+        _say_if_flat(ax, panel, "y", comp.metric,
+                     f"every run: {name} = {{value:g}}\nat every evaluation (no spread)")  # fmt: skip
         ax.set_title(task if len(tasks) > 1 else "mean over runs, 95% bootstrap band", fontsize=9)
         ax.set_xlabel("training steps")
         ax.set_ylabel(_METRIC_NAMES.get(comp.metric, comp.metric))
@@ -76,11 +96,14 @@ def intervals(comp: Comparison, aggregates: list[dict], path: Path) -> Path:
             ax.plot([iv.point], [y], "|", color="black", markersize=14)
         ax.set_yticks(range(len(rows)), [r["teacher"] for r in rows] if i == 0 or rows else [])
         ax.set_ylim(-0.7, max(len(rows), 1) - 0.3)
+        values = [x for r in rows for x in (r[name].low, r[name].point, r[name].high)]
         if name == "P(improvement)":
             ax.axvline(0.5, color="gray", linestyle="--", linewidth=1)
             ax.set_title(f"P({comp.baseline} < teacher)")
+            _say_if_flat(ax, values, "x", name, "{value:g} for every teacher:\nall runs tie")
         else:
             ax.set_title(f"{name} of final {_METRIC_NAMES.get(comp.metric, comp.metric)}")
+            _say_if_flat(ax, values, "x", comp.metric, "{value:g} for every teacher\n(no spread)")
         ax.grid(axis="x", alpha=0.3)
     fig.tight_layout()
     return _save(fig, path)
@@ -100,7 +123,10 @@ def performance_profiles(comp: Comparison, reps: int, seed: int, path: Path) -> 
         point, lo, hi = stats.performance_profile(scores, taus, reps=min(reps, 2000), seed=seed)
         ax.plot(taus, point, color=colors[teacher], label=teacher)
         ax.fill_between(taus, lo, hi, color=colors[teacher], alpha=0.2, linewidth=0)
-    ax.set_xlabel(f"final {_METRIC_NAMES.get(comp.metric, comp.metric)} (tau)")
+    name = _METRIC_NAMES.get(comp.metric, comp.metric)
+    _say_if_flat(ax, np.concatenate(finals), "x", comp.metric,
+                 f"every run's final {name} = {{value:g}}")  # fmt: skip
+    ax.set_xlabel(f"final {name} (tau)")
     ax.set_ylabel("fraction of runs with score > tau")
     ax.grid(alpha=0.3)
     ax.legend()

@@ -15,11 +15,42 @@ toy environment's competence map.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+# Every figure that compares teachers draws each one in its colour here, the same in every
+# figure (a colour cycle by position gave two teachers one colour as soon as there were more
+# than ten, or the same teacher another colour in another figure). Random, the usual baseline,
+# is dark grey. A shipped teacher needs a line (tests/test_teacher_colors.py holds them unique).
+TEACHER_COLORS: dict[str, str] = {
+    "random": "#4d4d4d",
+    "alp-gmm": "#1f77b4",
+    "covar-gmm": "#17becf",
+    "riac": "#2ca02c",
+    "adr": "#ff7f0e",
+    "self-paced": "#9467bd",
+    "goal-gan": "#d62728",
+    "setter-solver": "#8c564b",
+    "oracle": "#e377c2",
+    "lessons": "#bcbd22",
+    "robust-plr": "#000075",
+    "accel": "#800000",
+    "terrain-levels": "#469990",
+}
+# Teachers registered outside the package: a colour none of the shipped ones has, picked by a
+# stable hash of the name (the same in every figure and every run).
+OTHER_COLORS = ("#f032e6", "#e0b000", "#a9a9a9", "#fb9a99", "#b2df8a")
+
+
+def teacher_color(name: str) -> str:
+    """The colour `name` is drawn in, in every figure."""
+    if name in TEACHER_COLORS:
+        return TEACHER_COLORS[name]
+    return OTHER_COLORS[zlib.crc32(name.encode()) % len(OTHER_COLORS)]
 
 
 class SamplingRecorder:
