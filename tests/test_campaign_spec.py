@@ -115,3 +115,19 @@ def test_cli_list_show_and_errors(capsys):
     assert "# 2 runs, 8,192 steps in all" in out and "alp-gmm__s0" in out
     assert main(["campaign", "run", "quick", "--out", "/nonexistent/x", "--set", "nope=1"]) == 2
     assert "unknown training option 'nope'" in capsys.readouterr().err
+
+
+def test_an_exclude_rule_with_lists_matches_any_of_their_values():
+    spec = CampaignSpec.from_dict(
+        {
+            "name": "x",
+            "grid": {"teacher": ["random", "alp-gmm", "riac"]},
+            "seeds": 4,
+            # fewer seeds for RIAC and ALP-GMM; a rule of single values as before
+            "exclude": [{"teacher": ["riac", "alp-gmm"], "seed": [2, 3]},
+                        {"teacher": "alp-gmm", "seed": 0}],
+        }
+    )  # fmt: skip
+    names = [r.name for r in spec.expand()]
+    assert names == ["random__s0", "random__s1", "random__s2", "random__s3", "alp-gmm__s1",
+                     "riac__s0", "riac__s1"]  # fmt: skip

@@ -13,6 +13,7 @@ A spec is a YAML mapping::
           variants: {spider-sac: {body: spider, student: sac}, ...}
     seeds: 16                  # or a list of seeds
     exclude: [{teacher: adr, expert_knowledge: "no"}]   # runs matching all keys are skipped
+                               # (a list matches any of its values: {seed: [8, 9]})
     baseline: random           # the reference teacher of `acl3d analyze`
 
 `--budget F` multiplies every step count of the spec (steps, and the schedules measured in
@@ -362,7 +363,16 @@ def _drop_keys(axis: str, values, sets: dict):
 
 
 def _matches(rule: dict, labels: dict, options: dict) -> bool:
-    return all(labels.get(k, options.get(k)) == v for k, v in rule.items())
+    """Whether a run matches every key of an exclude rule; a list in the rule matches any of its
+    values (`{teacher: [riac, adr], seed: [8, 9]}`), a list-valued option only as a whole."""
+    for key, wanted in rule.items():
+        value = labels.get(key, options.get(key))
+        if isinstance(wanted, list) and not isinstance(value, list):
+            if value not in wanted:
+                return False
+        elif value != wanted:
+            return False
+    return True
 
 
 def _slug(value) -> str:
