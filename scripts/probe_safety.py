@@ -592,6 +592,110 @@ def evaluation_streams(probe: Probe) -> list[Check]:
     ]
 
 
+@item(10, "input checks: bounds, torn configs, resource bounds, names, files, usage")
+def input_checks(probe: Probe) -> list[Check]:
+    checks = []
+    run = probe.finished_run()
+    before = snapshot(run)
+    args = ("--bounds", "stump_height=0,100", "--out", run, "--overwrite")
+    proc = probe.acl3d("train", *TINY, *STEPS, *args, timeout=60)
+    checks += [refused(proc, "--bounds", "--bounds beyond the buildable range, --overwrite")]
+    checks.append(unchanged(before, run, "... the run --overwrite would replace is kept"))
+    run = probe.finished_run()
+    (run / "config.yaml").write_bytes((run / "config.yaml").read_bytes()[:395])
+    proc = probe.acl3d("evaluate", run, timeout=60)
+    checks.append(refused(proc, "config.yaml", "evaluate on a torn config.yaml"))
+
+    big, bad = probe.path("big.json"), probe.path("bad.json")
+    big.write_text(json.dumps([{"stump_height": 1.0}] * 150_000))
+    bad.write_text('[{"stump_height": 1.0,\n')
+    net = "policy_kwargs={net_arch: [65536, 65536, 65536]}"
+    for name, option, extra in (
+        ("a test set of 150,000 tasks", "--test-set", ("--test-set", big)),
+        ("a test set with a JSON syntax error", "--test-set", ("--test-set", bad)),
+        ("net_arch [65536] x 3", "net_arch", ("--student-param", net)),
+        ("a 300-character --out", "--out", ("--out", probe.root / ("x" * 300))),
+        ("a teacher misspelt alp_gmm", "did you mean 'alp-gmm'", ("--teacher", "alp_gmm")),
+    ):
+        out = probe.path("input")
+        proc = probe.acl3d("train", *TINY, *STEPS, "--out", out, *extra, timeout=120)
+        checks.append(refused(proc, option, name))
+        checks.append(Check(f"{name} writes nothing", not out.exists()))
+    config = probe.path("list.yaml")
+    config.write_text("env_kwargs: [1, 2]\n")
+    proc = probe.acl3d("train", "--config", config, "--env-kwarg", "max_episode_steps=50")
+    checks.append(refused(proc, "env_kwargs", "a config file's env_kwargs: [1, 2]"))
+    proc = probe.acl3d("train", "--task", "stump_height=1", timeout=60)
+    checks.append(refused(proc, "--task", "train --task: train's usage"))
+    checks.append(Check("... train's usage", proc.stderr.startswith("usage: acl3d train")))
+
+    run = probe.finished_run()
+    for name, option, args in (
+        ("evaluate --episodes 100000", "--episodes", ("evaluate", run, "--episodes", "100000")),
+        ("render --episodes 1e9", "--episodes", ("render", "--episodes", "1000000000")),
+        ("analyze --reps 1e12", "reps", ("analyze", probe.root, "--reps", str(10**12))),
+    ):
+        checks.append(refused(probe.acl3d(*args, timeout=120), option, name))
+    run = probe.finished_run()
+    truncate(run / "teacher.npz")
+    proc = probe.acl3d("render", "--curriculum", run, "--out", probe.path("c.gif"), timeout=60)
+    checks.append(no_traceback(proc, "render --curriculum on a truncated teacher.npz", says="npz"))
+
+    for key, value in (
+        ("env_kwargs", {"bogus": 1}),
+        ("test_set", "missing.json"),
+        ("bounds", {"stump_height": [3, 1]}),
+    ):
+        out = probe.path("camp")
+        proc = probe.acl3d(*campaign_args(out, 512, "--executor", "local", sets={key: value}))
+        checks.append(refused(proc, key if key != "bounds" else "min <= max", f"campaign {key}"))
+        checks.append(Check(f"campaign {key}: nothing written", not out.exists()))
+    for name, doc, extra, says in (
+        ("exclude: 5", {"exclude": 5}, (), "exclude"),
+        ("--budget 1e306", {"base": {"steps": 4096}}, ("--budget", "1e306"), "budget"),
+        (
+            "a 300-byte run name",
+            {"base": {"steps": 64}, "grid": {"c": {"a" * 300: {}}}},
+            (),
+            "run name",
+        ),
+    ):
+        spec = probe.path("spec.yaml")
+        spec.write_text(json.dumps({"name": "x", "grid": {"teacher": ["random"]}, **doc}))
+        out = probe.path("camp")
+        proc = probe.acl3d("campaign", "run", spec, "--out", out, *extra, timeout=60)
+        checks.append(refused(proc, says, f"campaign spec {name}"))
+        checks.append(Check(f"campaign spec {name}: nothing written", not out.exists()))
+
+    shipped = ROOT / "acl3d" / "results" / "stump-v1"
+    proc = subprocess.run(
+        [sys.executable, "-m", "acl3d", "analyze", str(shipped), "--reps", "200"],
+        capture_output=True, text=True, timeout=300, cwd=probe.root,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )  # fmt: skip
+    checks.append(
+        Check(
+            "analyze of the shipped results writes under the current directory",
+            proc.returncode == 0
+            and (probe.root / "report_stump-v1" / "report.md").exists()
+            and not (shipped / "report").exists(),
+            proc.stderr[-160:],
+        )
+    )
+    proc = probe.python(
+        "import gymnasium as gym, acl3d\n"
+        "gym.make_vec('acl3d/StumpTracks-v0', 2, vectorization_mode='sync', teacher=object())"
+    )
+    checks.append(
+        Check(
+            "make_vec sync with a teacher points to vector_entry_point",
+            'vectorization_mode="vector_entry_point"' in proc.stderr,
+            proc.stderr.strip()[-160:],
+        )
+    )
+    return checks
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("items", nargs="*", type=int, help="item numbers (default: all)")
