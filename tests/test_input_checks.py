@@ -32,16 +32,16 @@ def one_line_error(capsys, *words) -> str:
     return err
 
 
-def fake_run(path: Path, cut: int | None = None) -> Path:
+def fake_run(path: Path, cut: str | None = None) -> Path:
     """A run directory as train writes it (config.yaml with its sections, a checkpoint and a
-    final model), without training; `cut` tears config.yaml after that many bytes."""
+    final model), without training; `cut` tears config.yaml where that text starts."""
     config = TrainConfig(teacher="random", out=str(path))
     doc = {"config": config.to_dict(), "student_hyperparameters": {}, "resolved": {"steps": 512}}
     text = yaml.safe_dump(doc, sort_keys=False)
     (path / "checkpoints" / "step_000000000512").mkdir(parents=True)
     (path / "checkpoints" / "step_000000000512" / "model.zip").write_bytes(b"weights")
     (path / "final_model.zip").write_bytes(b"final weights")
-    (path / "config.yaml").write_text(text[:cut])
+    (path / "config.yaml").write_text(text[: text.index(cut)] if cut else text)
     return path
 
 
@@ -64,7 +64,7 @@ def test_bounds_beyond_the_buildable_range_keep_the_run_overwrite_would_delete(
 
 # ---------------------------------------------------------------------- 2: torn config.yaml
 def test_evaluate_refuses_a_torn_config_as_resume_does(tmp_path, capsys):
-    run = fake_run(tmp_path / "run", cut=395)
+    run = fake_run(tmp_path / "run", cut="  eval_every:")  # as `head -c` of a whole line
     assert main(["evaluate", str(run)]) == 2
     one_line_error(capsys, "config.yaml lacks config field(s)", "eval_stochastic")
 
