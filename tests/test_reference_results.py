@@ -25,7 +25,7 @@ from acl3d.analysis.leaderboard import (
     write_headline,
     write_leaderboard,
 )
-from acl3d.analysis.reference import analyze_against
+from acl3d.analysis.reference import analyze_against, missing_runs
 from acl3d.analysis.runs import load_runs
 from acl3d.cli import main
 
@@ -122,6 +122,9 @@ def test_export_of_a_real_run(tmp_path):
           nb_test_episodes=4, eval_every=128, env_kwargs={"max_episode_steps": 30},
           student_params={"n_steps": 128, "batch_size": 64, "n_epochs": 1}, progress_bar=False,
           verbose=0, out=str(run_dir))  # fmt: skip
+    planned = [{"name": f"random__s{i}", "labels": {"teacher": "random", "seed": i}}
+               for i in (0, 1)]  # fmt: skip
+    (tmp_path / "camp" / "campaign.yaml").write_text(yaml.safe_dump({"runs": planned}))
     names = export_campaign(tmp_path / "camp", tmp_path / "exported", "mini")
     assert names == ["random__s0"]
     got = tmp_path / "exported" / "random__s0"
@@ -155,6 +158,8 @@ def test_export_of_a_real_run(tmp_path):
     doc = yaml.safe_load((tmp_path / "exported" / "protocol.yaml").read_text())
     sizes = sum(p.stat().st_size for p in got.iterdir())
     assert doc["bytes"] == sizes and doc["thinned"] == {}
+    assert doc["planned_runs"] == {"random": 2}  # what the campaign was to run
+    assert missing_runs(tmp_path / "exported", load_runs(got)) == ["random (1 of 2 seeds)"]
     # the exported run is read like the original one
     (original,), (exported,) = load_runs(run_dir), load_runs(got)
     np.testing.assert_array_equal(original.metrics["mean_return"], exported.metrics["mean_return"])
@@ -203,3 +208,20 @@ def test_an_incomplete_reference_is_named_before_the_report(tmp_path, capsys):
     assert code == 0
     assert "reference 'reference-partial' is incomplete" in err and "riac (2 of 3 seeds)" in err
     assert "alp-gmm (" not in err and "random (" not in err
+
+
+def test_incomplete_against_the_runs_the_campaign_planned(tmp_path, capsys):
+    """A v2 protocol gives teachers different seed counts (exclude rules): the export records
+    the runs per teacher its campaign planned, and only those missing are named."""
+    partial = tmp_path / "reference-planned"
+    shutil.copytree(REFERENCE, partial)
+    doc = yaml.safe_load((partial / "protocol.yaml").read_text())
+    doc["planned_runs"] = {"random": 3, "alp-gmm": 3, "riac": 2}
+    (partial / "protocol.yaml").write_text(yaml.safe_dump(doc))
+    shutil.rmtree(partial / "riac__s2")  # RIAC planned with 2 seeds: complete
+    shutil.rmtree(partial / "alp-gmm__s1")
+    code = main(["analyze", str(NEW), "--reference", str(partial), "--metric", "mean_return",
+                 "--reps", "200", "--out", str(tmp_path / "report")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0 and "alp-gmm (2 of 3 seeds)" in err
+    assert "riac (" not in err and "random (" not in err

@@ -144,7 +144,11 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         _episodes_summary(run.path, steps, dest)
         thinned.update(_curriculum_files(run.path, dest))
     manifest = next(root.rglob("campaign.yaml"), None)
-    spec = (yaml.safe_load(manifest.read_text()) or {}).get("spec") if manifest else None
+    campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
+    planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
+    for entry in campaign.get("runs", []):
+        teacher = str((entry.get("labels") or {}).get("teacher"))
+        planned[teacher] = planned.get(teacher, 0) + 1
     doc = {
         "protocol": protocol,
         "exported": datetime.date.today().isoformat(),
@@ -159,7 +163,8 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         "git_commits": sorted({str(e.get("git_commit")) for e in environments}),
         "bytes": shipped_bytes(out),  # the runs' files, before this one
         "thinned": thinned,
-        "spec": spec,
+        "planned_runs": planned,
+        "spec": campaign.get("spec"),
     }
     (out / "protocol.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     return names

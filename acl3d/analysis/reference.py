@@ -56,17 +56,23 @@ def reference_runs(reference: str) -> tuple[str, list[Run]]:
 
 
 def missing_runs(folder: Path, runs: list[Run]) -> list[str]:
-    """The runs a protocol's spec asks for that its folder lacks (a campaign exported before it
-    finished): '<teacher> (k of n seeds)' per short teacher; empty without a protocol.yaml."""
+    """The runs a protocol's campaign was to make that its folder lacks (a campaign exported
+    before it finished): '<teacher> (k of n seeds)' per short teacher; empty without a
+    protocol.yaml. Its `planned_runs` (runs per teacher, exclude rules applied) where recorded,
+    else every teacher of the spec's grid times its seeds (v1's protocols)."""
     manifest = folder / "protocol.yaml"
     if not manifest.is_file():
         return []
-    spec = (yaml.safe_load(manifest.read_text()) or {}).get("spec") or {}
-    seeds = spec.get("seeds", [])
-    wanted = len(seeds) if isinstance(seeds, list) else int(seeds or 0)
-    teachers = (spec.get("grid") or {}).get("teacher") or {}
-    counts = {name: sum(r.teacher == name for r in runs) for name in teachers}
-    return [f"{name} ({k} of {wanted} seeds)" for name, k in counts.items() if k < wanted]
+    doc = yaml.safe_load(manifest.read_text()) or {}
+    wanted = doc.get("planned_runs")
+    if not wanted:
+        spec = doc.get("spec") or {}
+        seeds = spec.get("seeds", [])
+        per_teacher = len(seeds) if isinstance(seeds, list) else int(seeds or 0)
+        wanted = {name: per_teacher for name in (spec.get("grid") or {}).get("teacher") or {}}
+    counts = {name: sum(r.teacher == name for r in runs) for name in wanted}
+    return [f"{name} ({k} of {wanted[name]} seeds)" for name, k in counts.items()
+            if k < wanted[name]]  # fmt: skip
 
 
 def _get(doc: dict, keys: tuple[str, ...]):
