@@ -20,22 +20,16 @@ import time
 
 import gymnasium as gym
 import numpy as np
+from bench_terrain3d import TASK as TERRAIN3D_TASK  # scripts/ is on sys.path: a sibling script
 
 import acl3d  # noqa: F401  (first: picks the headless GL backend before mujoco loads)
 from acl3d.envs import ENV_IDS
 from acl3d.overlay import draw_label, episode_lines
 from acl3d.video import VideoSink
 
-TASKS = {  # a hard task of each: blocks, twist, hills and bumps in view on 3D Terrain
+TASKS = {  # 3D Terrain: bench_terrain3d's task (blocks, twist, hills and bumps in view)
     "stump-tracks": {"stump_height": 1.0, "obstacle_spacing": 3.0},
-    "terrain3d": {
-        "block_height": 0.6,
-        "block_width": 0.4,
-        "block_spacing": 2.0,
-        "cross_slope": 12.0,
-        "hill_slope": 8.0,
-        "roughness": 0.1,
-    },
+    "terrain3d": TERRAIN3D_TASK,
 }
 
 
