@@ -27,6 +27,8 @@ PACKAGES: dict[str, tuple[str, str]] = {
     "dm_control": ("dm-control", "dmc"),
     "sklearn": ("scikit-learn", "sklearn"),
     "syllabus": ("syllabus-rl", "syllabus"),
+    "warp": ("warp-lang", "gpu"),
+    "mujoco_warp": ("mujoco-warp", "gpu"),
 }
 
 

@@ -12,7 +12,6 @@ module imports neither torch nor MuJoCo.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import socket
@@ -22,7 +21,8 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-FILE = "provenance.json"
+from acl3d.run_format.documents import read_provenance, write_provenance
+
 EVENTS = ("start", "resume")
 ENDS = ("finished", "interrupted", "crashed")
 PACKAGES = {"acl3d": "acl3d", "torch": "torch", "mujoco": "mujoco", "numpy": "numpy"}
@@ -77,20 +77,7 @@ def collect(device: str | None = None) -> dict:
 
 def load(run_dir) -> list[dict] | None:
     """The segments of a run, oldest first; None for a run without provenance (shipped v1)."""
-    path = Path(run_dir) / FILE
-    if not path.is_file():
-        return None
-    segments = json.loads(path.read_text())
-    if not isinstance(segments, list) or not all(isinstance(s, dict) for s in segments):
-        raise ValueError(f"{path}: expected a list of segments, got {type(segments).__name__}")
-    return segments
-
-
-def _write(run_dir, segments: list[dict]) -> None:
-    path = Path(run_dir) / FILE
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(segments, indent=1) + "\n")
-    os.replace(tmp, path)
+    return read_provenance(Path(run_dir))
 
 
 def record(run_dir, event: str, step: int = 0, device: str | None = None) -> dict:
@@ -102,7 +89,7 @@ def record(run_dir, event: str, step: int = 0, device: str | None = None) -> dic
     previous = (load(run_dir) or []) if event == "resume" else []
     segment = {"event": event, "step": step, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                **collect(device)}  # fmt: skip
-    _write(run_dir, [*previous, segment])
+    write_provenance(Path(run_dir), [*previous, segment])
     return segment
 
 
@@ -114,7 +101,7 @@ def close(run_dir, end: str, step: int) -> None:
     if not segments:
         return
     segments[-1].update(end=end, end_step=int(step), ended=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
-    _write(run_dir, segments)
+    write_provenance(Path(run_dir), segments)
 
 
 def interruptions(segments: list[dict]) -> int:

@@ -17,9 +17,9 @@ ROOT = Path(__file__).resolve().parents[1] / "acl3d"
 
 # Lowest first. "acl3d" is the package's own __init__: it registers the environments.
 TIERS: tuple[tuple[str, ...], ...] = (
-    ("validation", "assets", "rendering", "video", "overlay", "atomic_files", "provenance"),
+    ("validation", "assets", "rendering", "video", "overlay", "atomic_files"),
     ("task_space", "run_format"),
-    ("curriculum_profile",),
+    ("curriculum_profile", "provenance"),
     ("terrain", "bodies", "teachers", "toy", "playback"),
     ("sim",),
     ("envs",),

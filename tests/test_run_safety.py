@@ -439,10 +439,12 @@ def test_provenance_is_carried_and_cleared_with_the_run(copy):
     from acl3d.run_format.documents import read_provenance, write_provenance
 
     run = copy()
+    assert [s["event"] for s in read_provenance(run)] == ["start"]  # written at the start
+    (run / "provenance.json").unlink()
     assert read_provenance(run) is None  # a run written before provenance.json
-    write_provenance(run, {"acl3d": "1.0", "cpu": "x86_64"})
-    assert read_provenance(run) == {"acl3d": "1.0", "cpu": "x86_64"}
-    with pytest.raises(ValueError, match="provenance=\\[1\\]; valid: a mapping"):
+    write_provenance(run, [{"acl3d": "1.0", "cpu": "x86_64"}])
+    assert read_provenance(run) == [{"acl3d": "1.0", "cpu": "x86_64"}]
+    with pytest.raises(ValueError, match="provenance=\\[1\\]; valid: a list of mappings"):
         write_provenance(run, [1])
     RunDir(run).clear()
     assert not (run / "provenance.json").exists()

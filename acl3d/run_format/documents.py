@@ -2,8 +2,9 @@
 that name the file.
 
 config.yaml holds sections: `config` (what `read_config` rebuilds the run from), derived facts
-such as `resolved`, `environment` and, after a resume, `resumed`. provenance.json is one JSON
-object describing where and with what the run was made; this package stores it as given.
+such as `resolved`, `environment` and, after a resume, `resumed`. provenance.json is a JSON list
+of segments, one per start or resume of the run, each an object describing where and with what
+that part was made (`acl3d.provenance` fills them); this package stores them as given.
 """
 
 from __future__ import annotations
@@ -47,22 +48,22 @@ def write_doc(run: Path, doc: dict) -> None:
     atomic_write(Path(run) / CONFIG_JSON, json.dumps(doc, indent=2))
 
 
-def write_provenance(run: Path, record: dict) -> None:
-    """RUN/provenance.json, replaced whole (a JSON object of plain values)."""
-    if not isinstance(record, dict):
-        raise ValueError(f"provenance={record!r}; valid: a mapping")
-    atomic_write(Path(run) / PROVENANCE, json.dumps(record, indent=2, sort_keys=True))
+def write_provenance(run: Path, segments: list) -> None:
+    """RUN/provenance.json, replaced whole (a JSON list of objects of plain values)."""
+    if not isinstance(segments, list) or not all(isinstance(s, dict) for s in segments):
+        raise ValueError(f"provenance={segments!r}; valid: a list of mappings (segments)")
+    atomic_write(Path(run) / PROVENANCE, json.dumps(segments, indent=1, sort_keys=True))
 
 
-def read_provenance(run: Path) -> dict | None:
-    """RUN/provenance.json, or None for a run written before it existed."""
+def read_provenance(run: Path) -> list | None:
+    """RUN/provenance.json's segments, or None for a run written before it existed."""
     path = Path(run) / PROVENANCE
     if not path.exists():
         return None
     try:
-        record = json.loads(path.read_text())
+        segments = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise ValueError(f"{path} cannot be read: {exc}") from None
-    if not isinstance(record, dict):
-        raise ValueError(f"{path} is not a JSON object (was it edited?)")
-    return record
+    if not isinstance(segments, list) or not all(isinstance(s, dict) for s in segments):
+        raise ValueError(f"{path} is not a JSON list of segments (was it edited?)")
+    return segments

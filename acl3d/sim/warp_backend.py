@@ -27,21 +27,17 @@ import mujoco
 import numpy as np
 import torch
 
+from acl3d.extras import optional_dependency
 from acl3d.sim.worlds import MAX_WORLDS, WorldFields
 
-GPU_EXTRA = 'pip install "acl3d[gpu]"'
 _FIELDS = ("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "sensordata", "qacc_warmstart", "time")
 
 
 def import_warp():
-    """(warp, mujoco_warp), or ImportError naming the extra that installs them."""
-    try:
+    """(warp, mujoco_warp), or an error naming the extra that installs them."""
+    with optional_dependency("the MuJoCo Warp backend (many worlds on a GPU)"):
         warp = importlib.import_module("warp")
         mjw = importlib.import_module("mujoco_warp")
-    except ImportError as error:
-        raise ImportError(
-            f"the MuJoCo Warp backend needs warp-lang and mujoco-warp: {GPU_EXTRA} ({error})"
-        ) from error
     warp.config.quiet = True
     return warp, mjw
 
