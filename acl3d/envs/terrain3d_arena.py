@@ -16,7 +16,6 @@ from acl3d.bodies.base import PREFIX, Body, BoundBody
 from acl3d.envs.arena import HFIELD_BASE_DEPTH, Arena, attach_body
 from acl3d.terrain.terrain3d import HEIGHT_RANGE, Terrain3DGenerator
 
-CAMERA_DISTANCE = 12.0  # metres beside the body: the whole field's width is in view
 # The tracking camera looks down on the field from behind and beside the body (offsets from its
 # centre of mass, metres), so slopes, twist and blocks read as relief, not as a side profile.
 CAMERA_OFFSET = (-6.0, -11.0, 7.0)
@@ -53,8 +52,8 @@ class Terrain3DArena(Arena):
         finish.pos = [generator.end_x, 0.0, 0.01]
         finish.size = [0.05, g.half_width, 0.01]
         _lighting(spec, half_length, g.half_width)
-        attach_body(spec, body, self.start_x, CAMERA_DISTANCE)
-        camera = spec.camera(PREFIX + "track")
+        attach_body(spec, body, self.start_x, camera_distance=-CAMERA_OFFSET[1])
+        camera = spec.camera(PREFIX + "track")  # the tracks' side view, turned to look down
         camera.pos, camera.alt.xyaxes = CAMERA_OFFSET, look_at(CAMERA_OFFSET, CAMERA_TARGET)
         self.spec = spec
         self.model = spec.compile()
