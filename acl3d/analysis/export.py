@@ -24,6 +24,7 @@ import yaml
 from acl3d import provenance
 from acl3d.analysis.curriculum_files import shipped_bytes, write_episodes, write_teacher
 from acl3d.analysis.runs import load_runs
+from acl3d.run_format import layout
 
 SUMMARY_WINDOWS = 20
 EVAL_TASK_COLUMNS = ("step", "task_index", "return", "length", "success")
@@ -103,8 +104,8 @@ def _episodes_summary(run: Path, steps: int, dest: Path) -> None:
 def _curriculum_files(run: Path, dest: Path) -> dict[str, dict]:
     """Episodes, teacher dump and provenance of `run` into `dest`; {name: strides} where a
     budget thinned a file (every k-th episode kept; {path: k} of the teacher's histories)."""
-    if (run / provenance.FILE).exists():
-        shutil.copyfile(run / provenance.FILE, dest / provenance.FILE)
+    if (run / layout.PROVENANCE).exists():
+        shutil.copyfile(run / layout.PROVENANCE, dest / layout.PROVENANCE)
     strides = {}
     episodes, teacher = write_episodes(run, dest), write_teacher(run, dest)
     if episodes is not None and episodes["every"] > 1:
