@@ -63,6 +63,20 @@ def test_torch_rules_equal_numpy_rules_on_the_same_physics(worlds):
     )
 
 
+def test_torch_rules_of_a_free_3d_body_equal_numpy_rules():
+    spider = ManyWorldTracks(2, device="cpu", body="spider", planar=False)
+    spider.reset(seed=4)
+    for k in range(3):
+        spider.step(_actions(spider, 30 + k))
+    rules = spider.template.rules
+    rows = rules.new_rows(spider.num_envs)
+    rows.heights[:, : spider.heights.shape[1]] = spider.heights.double().numpy()
+    x_np, obs_np = rules.observe(WorldsAsNumpy(spider.sim), rows)
+    x_t, obs_t = spider.rules.observe(spider.sim, spider.heights)
+    np.testing.assert_allclose(obs_t.numpy(), obs_np, rtol=1e-5, atol=1e-5)
+    assert obs_np.shape[1] == spider.observation_size and not rules.body.planar
+
+
 def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):
     cpu = TrackEnv(body="classic_bipedal")
     obs_cpu, _ = cpu.reset(seed=5, options={"task": FLAT})
