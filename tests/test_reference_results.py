@@ -25,7 +25,7 @@ from acl3d.analysis.leaderboard import (
     write_headline,
     write_leaderboard,
 )
-from acl3d.analysis.reference import analyze_against, missing_runs
+from acl3d.analysis.reference import analyze_against, machine_notes, missing_runs
 from acl3d.analysis.runs import load_runs
 from acl3d.cli import main
 
@@ -155,6 +155,8 @@ def test_export_of_a_real_run(tmp_path):
     assert len(dump["periodical_samples"]) == len(original_dump["periodical_samples"])
     assert dump["bounds"] == original_dump["bounds"]
     assert provenance.load(got) == provenance.load(run_dir)
+    # so a reference exported since v2 is compared machine to machine, not 'unknown'
+    assert machine_notes(load_runs(run_dir), load_runs(got), "mini") == []
     doc = yaml.safe_load((tmp_path / "exported" / "protocol.yaml").read_text())
     sizes = sum(p.stat().st_size for p in got.iterdir())
     assert doc["bytes"] == sizes and doc["thinned"] == {}
