@@ -68,6 +68,13 @@ def test_episodes_within_budget_keep_every_kth(tmp_path, n, budget):
 
 def test_a_run_without_episodes_is_skipped_and_named_on_read(tmp_path):
     assert write_episodes(tmp_path, tmp_path) is None
+    run = tmp_path / "run"  # finished before any episode ended (long episodes, short budget)
+    _episode_log(run, 0)
+    assert write_episodes(run, run)["episodes"] == 0
+    assert read_episodes(run)["task"].shape == (0, 2)
+    for write in (write_episodes, write_teacher):
+        with pytest.raises(ValueError, match="budget=0; valid: an integer >= 1"):
+            write(run, run, 0)
     with pytest.raises(ValueError, match="neither episodes.npz nor episodes.csv"):
         read_episodes(tmp_path)
 

@@ -13,8 +13,8 @@ the episodes and test results (shipped in episodes.npz and evals_tasks.csv) are 
 A run whose file would exceed its budget keeps every k-th episode, the smallest k that fits
 (`every` in episodes.npz, 1: all kept; `episodes`: how many the run played); the teacher's
 histories keep at most as many entries each as fit, every k-th of a longer one (`every` in
-teacher.json: {path: k} of the thinned ones). The budgets keep a 20M-step campaign of ~150 runs under
-~30 MB (docs/results.md, "Size budget").
+teacher.json: {path: k} of the thinned ones). The budgets keep a 20M-step campaign of ~150
+runs under ~30 MB (docs/results.md, "Size budget").
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acl3d import validation as check
 from acl3d.run_format import layout
 from acl3d.run_format.tables import read_csv
 from acl3d.teachers.base import load_state, save_state
@@ -54,7 +55,7 @@ def episode_columns(log: dict[str, list[float]]) -> dict[str, np.ndarray]:
         "length": np.asarray(log.get("length", []), dtype=np.int32),
         "success": np.asarray(log.get("success", []), dtype=bool),
         "truncated": np.asarray(log.get("truncated", [0] * n), dtype=bool),
-        "task": np.column_stack([np.asarray(log[c], np.float32) for c in names]).reshape(n, -1),
+        "task": np.asarray([log[c] for c in names], np.float32).reshape(len(names), n).T,
         "task_names": np.asarray(names, dtype=str),
     }
 
@@ -65,9 +66,9 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return buffer.getvalue()
 
 
-def _thinned(size, budget: int, write):
-    """(every, result) of `write(every)` -> (result, bytes) for the smallest stride every >= 1
-    whose bytes fit `budget` (the last stride tried when even one entry does not fit)."""
+def _thinned(size: int, budget: int, write):
+    """(every, result): `write(every)` gives (result, bytes); the first stride tried whose bytes
+    fit `budget`, from 1 up (or `size` and more, which keeps one entry, when none fits)."""
     every = 1
     while True:
         result, used = write(every)
@@ -79,6 +80,7 @@ def _thinned(size, budget: int, write):
 def write_episodes(run: Path, dest: Path, budget: int = EPISODES_BUDGET) -> dict | None:
     """DEST/episodes.npz from RUN/episodes.csv; {'episodes', 'every', 'bytes'}, or None for a
     run without an episode log."""
+    check.count("budget", budget)
     log_path = Path(run) / layout.EPISODES
     if not log_path.exists():
         return None
@@ -176,6 +178,7 @@ def write_teacher(run: Path, dest: Path, budget: int = TEACHER_BUDGET) -> dict |
     stride} of the thinned sequences, 'bytes', 'left_out'}, or None for a run without a dump.
     Thinning caps the entries kept per sequence, so the longest (per-episode) lists lose
     entries first and the short ones (one entry per refit) keep them all while they fit."""
+    check.count("budget", budget)
     prefix = Path(run) / layout.TEACHER
     if not prefix.with_suffix(".json").exists():
         return None
