@@ -66,6 +66,20 @@ def test_episodes_within_budget_keep_every_kth(tmp_path, n, budget):
     np.testing.assert_array_equal(raw["step"], cols["step"])
 
 
+@pytest.mark.parametrize(("budget", "every"), [(130, 8), (1000, 1), (1, 501)])
+def test_the_stride_is_the_smallest_that_fits(budget, every):
+    from acl3d.analysis.curriculum_files import _thinned
+
+    tried = []
+
+    def write(k):
+        tried.append(k)
+        return k, 1000 // k  # bytes fall as the stride grows
+
+    assert _thinned(1000, budget, write) == (every, every)
+    assert len(tried) < 30
+
+
 def test_a_run_without_episodes_is_skipped_and_named_on_read(tmp_path):
     assert write_episodes(tmp_path, tmp_path) is None
     run = tmp_path / "run"  # finished before any episode ended (long episodes, short budget)

@@ -67,14 +67,23 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def _thinned(size: int, budget: int, write):
-    """(every, result): `write(every)` gives (result, bytes); the first stride tried whose bytes
-    fit `budget`, from 1 up (or `size` and more, which keeps one entry, when none fits)."""
-    every = 1
-    while True:
+    """(every, result): `write(every)` gives (result, bytes); the smallest stride whose bytes fit
+    `budget` (bytes fall as the stride grows), or `size` (one entry kept) when none does."""
+    too_small, every = 0, 1
+    result, used = write(every)
+    while used > budget and every < size:  # grow the stride by the bytes' excess
+        too_small, every = every, min(size, max(every + 1, math.ceil(every * used / budget)))
         result, used = write(every)
-        if used <= budget or every >= size:
-            return every, result
-        every = max(every + 1, math.ceil(every * used / budget))
+    if used > budget:
+        return every, result
+    while every - too_small > 1:  # the jumps may overshoot: halve back to the smallest
+        middle = (too_small + every) // 2
+        tried, used = write(middle)
+        if used <= budget:
+            every, result = middle, tried
+        else:
+            too_small = middle
+    return every, result
 
 
 def write_episodes(run: Path, dest: Path, budget: int = EPISODES_BUDGET) -> dict | None:
