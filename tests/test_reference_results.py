@@ -161,6 +161,8 @@ def test_export_of_a_real_run(tmp_path):
     sizes = sum(p.stat().st_size for p in got.iterdir())
     assert doc["bytes"] == sizes and doc["thinned"] == {}
     assert doc["planned_runs"] == {"random": 2}  # what the campaign was to run
+    (segment,) = provenance.load(run_dir)
+    assert doc["hardware"]["runs_on"] == [f"{segment['cpu_model']} · {segment['device']}"]
     assert missing_runs(tmp_path / "exported", load_runs(got)) == ["random (1 of 2 seeds)"]
     # the exported run is read like the original one
     (original,), (exported,) = load_runs(run_dir), load_runs(got)

@@ -131,7 +131,7 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
     if out.exists():
         shutil.rmtree(out)  # an export replaces the previous one of that protocol as a whole
     out.mkdir(parents=True)
-    environments, thinned = [], {}
+    environments, thinned, machines = [], {}, set()
     for run in finished:
         dest = out / run.path.name
         dest.mkdir()
@@ -144,6 +144,8 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         steps = int(config.get("resolved", {}).get("steps") or config["config"]["steps"])
         _episodes_summary(run.path, steps, dest)
         thinned.update(_curriculum_files(run.path, dest))
+        for segment in provenance.load(run.path) or []:
+            machines.add(f"{segment.get('cpu_model')} · {segment.get('device')}")
     manifest = next(root.rglob("campaign.yaml"), None)
     campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
     planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
@@ -158,6 +160,7 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         "hardware": {
             "platform": sorted({e.get("platform", "?") for e in environments}),
             "python": sorted({e.get("python", "?") for e in environments}),
+            "runs_on": sorted(machines),  # CPU model · device of every run segment (provenance)
             "exported_on": {"cpus": os.cpu_count(), "cpu_model": provenance.cpu_model()},
         },
         "packages": environments[0].get("packages", {}),
