@@ -34,7 +34,7 @@ from acl3d.teachers.base import load_state, save_state
 
 EPISODES_FILE = "episodes.npz"
 EPISODES_BUDGET = 96_000  # bytes of episodes.npz per run
-TEACHER_BUDGET = 40_000  # bytes of teacher.json + teacher.npz per run
+TEACHER_BUDGET = 48_000  # bytes of teacher.json + teacher.npz per run
 RESULTS_BUDGET = 30_000_000  # bytes of every shipped protocol together (acl3d/results)
 EPISODE_LOG_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
 # The dump's records shipped in other files: the played episodes (episodes.npz), the tasks drawn
