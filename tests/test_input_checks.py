@@ -12,6 +12,7 @@ from pathlib import Path
 import gymnasium as gym
 import pytest
 import yaml
+from cli_support import one_line_error
 
 from acl3d.cli import main
 from acl3d.teachers import teacher_class, test_sets
@@ -22,14 +23,6 @@ TINY = [
     "--env-kwarg", "max_episode_steps=50", "--student-param", "n_steps=128",
     "--student-param", "batch_size=128", "--steps", "512", "--no-progress", "--quiet",
 ]  # fmt: skip
-
-
-def one_line_error(capsys, *words) -> str:
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    for word in words:
-        assert word in err, err
-    return err
 
 
 def fake_run(path: Path, cut: str | None = None) -> Path:

@@ -48,14 +48,15 @@ def _actions(env, seed):
     return torch.rand((env.num_envs, env.action_size), generator=g) * 2 - 1
 
 
-def test_torch_rules_equal_numpy_rules_on_the_same_physics(worlds):
-    for k in range(3):
-        worlds.step(_actions(worlds, k))
+def _assert_rules_agree(worlds) -> None:
+    """The torch rules' observation, head x and shaping equal the numpy rules' on the worlds'
+    current physics (float32 tolerance)."""
     rules = worlds.template.rules
     rows = rules.new_rows(worlds.num_envs)
     rows.heights[:, : worlds.heights.shape[1]] = worlds.heights.double().numpy()
     x_np, obs_np = rules.observe(WorldsAsNumpy(worlds.sim), rows)
     x_t, obs_t = worlds.rules.observe(worlds.sim, worlds.heights)
+    assert obs_np.shape == (worlds.num_envs, worlds.observation_size)
     np.testing.assert_allclose(x_t.numpy(), x_np, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(obs_t.numpy(), obs_np, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(
@@ -63,18 +64,19 @@ def test_torch_rules_equal_numpy_rules_on_the_same_physics(worlds):
     )
 
 
+def test_torch_rules_equal_numpy_rules_on_the_same_physics(worlds):
+    for k in range(3):
+        worlds.step(_actions(worlds, k))
+    _assert_rules_agree(worlds)
+
+
 def test_torch_rules_of_a_free_3d_body_equal_numpy_rules():
     spider = ManyWorldTracks(2, device="cpu", body="spider", planar=False)
     spider.reset(seed=4)
     for k in range(3):
         spider.step(_actions(spider, 30 + k))
-    rules = spider.template.rules
-    rows = rules.new_rows(spider.num_envs)
-    rows.heights[:, : spider.heights.shape[1]] = spider.heights.double().numpy()
-    x_np, obs_np = rules.observe(WorldsAsNumpy(spider.sim), rows)
-    x_t, obs_t = spider.rules.observe(spider.sim, spider.heights)
-    np.testing.assert_allclose(obs_t.numpy(), obs_np, rtol=1e-5, atol=1e-5)
-    assert obs_np.shape[1] == spider.observation_size and not rules.body.planar
+    _assert_rules_agree(spider)
+    assert not spider.template.rules.body.planar
 
 
 def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from cli_support import one_line_error
 
 from acl3d import atomic_files
 from acl3d.campaign.run_state import read_state
@@ -54,14 +55,6 @@ def copy(finished, tmp_path):
 
 def snapshot(run: Path) -> dict[str, bytes]:
     return {str(p.relative_to(run)): p.read_bytes() for p in run.rglob("*") if p.is_file()}
-
-
-def one_line_error(capsys, *words) -> str:
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    for word in words:
-        assert word in err, err
-    return err
 
 
 def truncate(path: Path) -> None:

@@ -8,6 +8,8 @@ streams, so training continues exactly as without it.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 import torch
 
@@ -18,7 +20,34 @@ from acl3d.envs.many_worlds import many_worlds
 from acl3d.training.evaluation import EvalResult, own_random_streams
 
 
-class WorldEvaluator:
+class ChunkedEvaluator(ABC):
+    """Plays the test set in chunks of `num_worlds` tasks (one world each); subclasses set
+    `tasks`, `seed`, `num_worlds`, `success_return` and play one chunk in `_play`."""
+
+    tasks: np.ndarray
+    seed: int
+    num_worlds: int
+    success_return: float
+
+    def run(self, policy) -> EvalResult:
+        """`policy((N, obs) float32 tensor) -> (N, act) tensor` (on the worlds' device)."""
+        n_tasks = len(self.tasks)
+        returns, lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
+        successes = np.zeros(n_tasks, dtype=bool)
+        with own_random_streams(self.seed):
+            for start in range(0, n_tasks, self.num_worlds):
+                chunk = np.arange(start, min(start + self.num_worlds, n_tasks))
+                self._play(policy, chunk, returns, lengths, successes)
+        return EvalResult(
+            self.tasks.astype(np.float64), returns, lengths, successes, self.success_return
+        )
+
+    @abstractmethod
+    def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
+        """Play test tasks `chunk` at once; write their results into the arrays."""
+
+
+class WorldEvaluator(ChunkedEvaluator):
     """Evaluates a policy on `tasks` with the run's evaluation seed (the same every pass)."""
 
     def __init__(self, config, tasks):
@@ -30,20 +59,7 @@ class WorldEvaluator:
         )
         self.success_return = float(self.vector.envs[0].curriculum_profile.success_return)
 
-    def run(self, policy) -> EvalResult:
-        """`policy((N, obs) float32 tensor) -> (N, act) tensor`."""
-        n_tasks = len(self.tasks)
-        returns, lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
-        successes = np.zeros(n_tasks, dtype=bool)
-        with own_random_streams(self.seed):
-            for start in range(0, n_tasks, self.num_worlds):
-                chunk = range(start, min(start + self.num_worlds, n_tasks))
-                self._play(policy, chunk, returns, lengths, successes)
-        return EvalResult(
-            self.tasks.astype(np.float64), returns, lengths, successes, self.success_return
-        )
-
-    def _play(self, policy, chunk: range, returns, lengths, successes) -> None:
+    def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
         n = self.num_worlds
         index = [chunk[min(i, len(chunk) - 1)] for i in range(n)]  # spare worlds replay the last
         options = [{"task": self.tasks[k]} for k in index]
@@ -65,7 +81,7 @@ class WorldEvaluator:
         self.vector.close()
 
 
-class ManyWorldEvaluator:
+class ManyWorldEvaluator(ChunkedEvaluator):
     """`WorldEvaluator` on the many-world simulation (MuJoCo Warp): test task k is world k of
     one `ManyWorldTracks` on the run's device, all played at once; the terrain draws come from
     the evaluation seed, so every pass plays the same tracks."""
@@ -78,17 +94,6 @@ class ManyWorldEvaluator:
             config.env, self.num_worlds, device, body=config.body, **config.env_kwargs
         )
         self.success_return = float(self.worlds.curriculum_profile.success_return)
-
-    def run(self, policy) -> EvalResult:
-        """`policy((N, obs) float32 tensor on the device) -> (N, act) tensor`."""
-        n_tasks = len(self.tasks)
-        returns, lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
-        successes = np.zeros(n_tasks, dtype=bool)
-        with own_random_streams(self.seed):
-            for start in range(0, n_tasks, self.num_worlds):
-                chunk = np.arange(start, min(start + self.num_worlds, n_tasks))
-                self._play(policy, chunk, returns, lengths, successes)
-        return EvalResult(self.tasks, returns, lengths, successes, self.success_return)
 
     def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
         worlds, n = self.worlds, self.num_worlds
