@@ -9,7 +9,9 @@ skipped for the previous one; no raw traceback for any mistake on the list.
     python scripts/probe_safety.py          # every item (a few minutes on 2 cores)
     python scripts/probe_safety.py 3 7      # some items
 
-Add an item with `@item(N, "title")` on a function `(probe) -> list[Check]`.
+Add an item with `@item(N, "title")` on a function `(probe) -> list[Check]`. One file on
+purpose (above the ~400-line guideline): each item is one user's story, read top to bottom, and
+the file is a script people run, not a module others import.
 """
 
 from __future__ import annotations
