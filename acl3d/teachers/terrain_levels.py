@@ -7,7 +7,11 @@ dimension; the other dimensions are drawn uniformly. Tasks go to the robots in t
 robot's episode is reported, its level goes up if the episode went far enough (return >=
 `promote_return`), down if it fell short (return < `demote_return`, never below 0), and a robot
 promoted past the top level is sent to a random level (the rule that keeps the top levels from
-being over-trained). Levels start uniformly in [0, max_init_level].
+being over-trained). Levels start uniformly in [0, max_init_level]. A dimension's hard end is
+`hard_end`, by default the bound away from the environment's easy side
+(`CurriculumProfile.easy_at_high`): on Stump Tracks obstacle_spacing gets harder downwards, so
+level 9 is tall, dense stumps (with "max" everywhere, levels raised the stumps while widening
+their spacing, and every level had the same overall difficulty).
 
 "How far the episode went" is the episodic return as the teacher receives it (raw, or in [0, 1]
 with reward scaling): on acl3d's tracks the return is dominated by forward progress (130 per 30 m
@@ -22,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from acl3d.curriculum_profile import CurriculumProfile, easy_directions
 from acl3d.teachers.base import RunFacts, Teacher
 from acl3d.validation import count, fail, integer, real
 
@@ -32,6 +37,11 @@ class TerrainLevels(Teacher):
     """Per-robot difficulty levels promoted and demoted by how far each episode went."""
 
     name = "terrain-levels"
+
+    @classmethod
+    def run_params(cls, facts: RunFacts) -> dict[str, Any]:
+        """The environment's easy side: levels walk each dimension away from it."""
+        return {"easy_at_high": sorted(facts.profile.easy_at_high), **super().run_params(facts)}
 
     @classmethod
     def toy_params(cls, facts: RunFacts) -> dict[str, Any]:
@@ -55,6 +65,7 @@ class TerrainLevels(Teacher):
         nb_workers: int = 16,
         promote_return: float = 180.0,
         demote_return: float = 90.0,
+        easy_at_high=CurriculumProfile.easy_at_high,
     ):
         super().__init__(task_space, seed)
         names = list(self.task_space.names)
@@ -81,7 +92,11 @@ class TerrainLevels(Teacher):
             if not idx or len(set(idx)) != len(idx):
                 raise fail("dimensions", dimensions, "a non-empty list without repeats")
             self.level_dims = np.asarray(idx, dtype=np.intp)
-        ends = ["max"] * len(self.level_dims) if hard_end is None else hard_end
+        if hard_end is None:  # hard away from the environment's easy side
+            up = easy_directions(self.task_space, easy_at_high)[self.level_dims] > 0
+            ends = ["max" if u else "min" for u in up]
+        else:
+            ends = hard_end
         if (
             not isinstance(ends, (list, tuple))
             or len(ends) != len(self.level_dims)
