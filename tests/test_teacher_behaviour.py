@@ -5,6 +5,12 @@ difficulty d succeeds with probability sigmoid((skill - d) / 0.03), and playing 
 the frontier raises the skill. A teacher that does what its paper says proposes harder tasks as
 the skill grows; one stuck on a fixed region (a window on the hard corner, a box around one
 random task) fails these tests. Each test runs in about a second.
+
+Teachers that need more than returns get what a training loop gives them (their `needs`): each
+stub episode is STEPS steps sharing its return, its states are (task, fraction of the episode
+left), and the value estimator is a critic whose skill estimate lags the learner's (a critic
+that is always exact leaves no advantage for Robust PLR to score). Episodes a teacher marks
+exploratory do not train the learner, as in acl3d's training.
 """
 
 from __future__ import annotations
@@ -33,12 +39,34 @@ class StubLearner:
         self.rng = np.random.default_rng(seed)
         self.skill, self.rate = skill, rate
 
-    def play(self, task: np.ndarray) -> tuple[float, bool]:
+    def play(self, task: np.ndarray, learn: bool = True) -> tuple[float, bool]:
         d = difficulty(task)
-        p_success = 1.0 / (1.0 + np.exp(-(self.skill - d) / 0.03))
-        episode_return = -100.0 + 400.0 * p_success + self.rng.normal(0.0, 10.0)
-        self.skill = min(1.0, self.skill + self.rate * np.exp(-(((d - self.skill) / 0.1) ** 2)))
+        episode_return = expected_return(self.skill, d) + self.rng.normal(0.0, 10.0)
+        if learn:
+            gain = self.rate * np.exp(-(((d - self.skill) / 0.1) ** 2))
+            self.skill = min(1.0, self.skill + gain)
         return episode_return, bool(episode_return > STUMP_TRACKS.success_return)
+
+
+def expected_return(skill, d):
+    return -100.0 + 400.0 / (1.0 + np.exp(-(skill - d) / 0.03))
+
+
+STEPS = 10  # steps per stub episode, for teachers that take step rewards
+
+
+class LaggingCritic:
+    """V(state) from a skill estimate that follows the learner's skill with a lag."""
+
+    def __init__(self, skill: float, rate: float = 0.05):
+        self.skill, self.rate = skill, rate
+
+    def __call__(self, states: np.ndarray) -> np.ndarray:
+        d = np.array([difficulty(s[:2]) for s in states])
+        return expected_return(self.skill, d) * states[:, 2]
+
+    def follow(self, skill: float) -> None:
+        self.skill += self.rate * (skill - self.skill)
 
 
 # small, fast settings where a teacher's defaults take minutes (GAN sizes, fit rates)
@@ -55,6 +83,9 @@ FAST = {
     "alp-gmm": {"fit_rate": 100, "potential_ks": [2, 3, 4]},
     "covar-gmm": {"fit_rate": 100, "potential_ks": [2, 3, 4]},
     "riac": {"max_region_size": 60},
+    "self-paced": {"update_frequency": 200, "update_offset": 1000},  # steps: every 20 episodes
+    "robust-plr": {"buffer_size": 100},
+    "accel": {"buffer_size": 100},
 }
 
 
@@ -67,18 +98,32 @@ def one_torch_thread():
     torch.set_num_threads(threads)
 
 
-def run(name: str, episodes: int, seed: int = 0):
-    params = {**teacher_params(name, STUMP_TRACKS, SPACE, "low"), **FAST.get(name, {})}
+def run(name: str, episodes: int, seed: int = 0, level: str = "low", rate: float = 0.004, **extra):
+    """Proposed difficulties, the learner's skill after each episode and whether each episode
+    was exploratory."""
+    params = {**teacher_params(name, STUMP_TRACKS, SPACE, level), **FAST.get(name, {}), **extra}
     teacher = make(name, SPACE, seed=seed, **params)
-    learner = StubLearner(seed)
-    difficulties, skills = [], []
+    learner = StubLearner(seed, rate=rate)
+    critic = LaggingCritic(learner.skill)
+    if "value_estimator" in teacher.needs:
+        teacher.set_value_estimator(critic)
+    difficulties, skills, exploratory = [], [], []
     for _ in range(episodes):
         task = teacher.sample_task()
-        episode_return, success = learner.play(task)
+        explore = teacher.is_exploratory(task)
+        teacher.record_initial_state(task, np.array([*task, 1.0]))
+        episode_return, success = learner.play(task, learn=not explore)
+        if "step_rewards" in teacher.needs:
+            for t in range(STEPS):
+                state = np.array([*task, 1.0 - t / STEPS])
+                done = t == STEPS - 1
+                teacher.step_update(state, None, episode_return / STEPS, state, done)
         teacher.episodic_update(task, episode_return, success)
+        critic.follow(learner.skill)
         difficulties.append(difficulty(task))
         skills.append(learner.skill)
-    return np.array(difficulties), np.array(skills)
+        exploratory.append(explore)
+    return np.array(difficulties), np.array(skills), np.array(exploratory)
 
 
 @pytest.mark.parametrize(
@@ -90,10 +135,11 @@ def run(name: str, episodes: int, seed: int = 0):
         ("alp-gmm", 2000),
         ("covar-gmm", 2000),
         ("riac", 2000),
+        ("terrain-levels", 2000),
     ],
 )
 def test_proposed_tasks_get_harder_as_the_learner_improves(name, episodes):
-    difficulties, skills = run(name, episodes)
+    difficulties, skills, _ = run(name, episodes)
     window = episodes // 5
     early, late = difficulties[:window].mean(), difficulties[-window:].mean()
     assert skills[-1] > skills[0] + 0.2, f"{name}: the learner did not improve ({skills[-1]:.2f})"
@@ -102,7 +148,7 @@ def test_proposed_tasks_get_harder_as_the_learner_improves(name, episodes):
 
 @pytest.mark.parametrize("name", ["oracle", "adr", "goal-gan"])
 def test_the_first_tasks_are_on_the_environments_easy_side(name):
-    difficulties, _ = run(name, 50)
+    difficulties, _, _ = run(name, 50)
     assert difficulties.mean() < 0.25, f"{name} starts at difficulty {difficulties.mean():.2f}"
 
 
@@ -119,3 +165,55 @@ def test_adr_random_start_is_teachmyagents_and_can_be_stuck():
         task = teacher.sample_task()
         teacher.episodic_update(task, *learner.play(task))
     np.testing.assert_array_equal(teacher.cur_low, teacher.cur_high)
+
+
+def windows(values: np.ndarray, n: int = 5) -> np.ndarray:
+    return values.reshape(n, -1).mean(axis=1)
+
+
+def test_random_proposals_do_not_move_though_the_learner_improves():
+    """The control: the same learner improves under Random, whose proposals stay uniform."""
+    difficulties, skills, _ = run("random", 2000)
+    early, late = windows(difficulties)[[0, -1]]
+    assert skills[-1] > skills[0] + 0.2
+    assert abs(late - early) < 0.05, f"random moved: {early:.2f} -> {late:.2f}"
+
+
+@pytest.mark.parametrize("name", ["robust-plr", "accel"])
+def test_replayed_levels_get_harder_as_the_learner_improves(name):
+    """Half of PLR's proposals are new uniform levels (exploratory: they do not train the
+    learner); the replayed ones, which train it, follow its frontier. A slower learner keeps the
+    frontier inside the space for the whole run."""
+    difficulties, skills, exploratory = run(name, 2000, rate=0.002)
+    replayed = ~exploratory
+    window = np.arange(len(difficulties)) // 400
+    early = difficulties[replayed & (window == 0)].mean()
+    late = difficulties[replayed & (window == 4)].mean()
+    assert skills[-1] > skills[0] + 0.2, f"{name}: the learner did not improve ({skills[-1]:.2f})"
+    assert late > early + 0.1, f"{name}: replayed difficulty {early:.2f} -> {late:.2f}"
+
+
+def test_self_paced_climbs_from_its_easy_start():
+    """SPDL starts at its initial (easy) distribution, given at expert knowledge "high"; with
+    "low" it starts at a random mean, which on a hard task leaves the learner nothing to learn.
+    It climbs slowly on this learner (see docs/teachers.md)."""
+    difficulties, skills, _ = run("self-paced", 2000, level="high")
+    early, late = windows(difficulties)[[0, -1]]
+    assert skills[-1] > skills[0] + 0.15, f"the learner did not improve ({skills[-1]:.2f})"
+    assert late > early + 0.03, f"self-paced: proposed difficulty {early:.2f} -> {late:.2f}"
+
+
+LESSONS = {
+    "measure": "reward",
+    "thresholds": [150.0, 150.0, 150.0],
+    "min_lesson_length": 20,
+    "parameters": {"stump_height": [0.0, 0.6, 1.2, 1.8], "obstacle_spacing": [6.0, 4.8, 3.6, 2.4]},
+}
+
+
+def test_lessons_advance_when_the_learner_passes_each_threshold():
+    difficulties, skills, _ = run("lessons", 1500, curriculum=LESSONS)
+    lessons = np.round(difficulties / 0.2).astype(int)  # lesson l sits at difficulty 0.2 l
+    assert lessons[0] == 0 and lessons[-1] == 3, f"lessons {lessons[0]} -> {lessons[-1]}"
+    assert np.all(np.diff(lessons) >= 0), "a lesson went back"
+    assert skills[-1] > 0.6, f"the learner did not improve ({skills[-1]:.2f})"
