@@ -471,7 +471,7 @@ def test_bad_test_sets_raise(tmp_path):
     (tmp_path / "b.csv").write_text("stump_height,obstacle_spacing\n1,x\n")
     with pytest.raises(ValueError, match="b.csv"):
         ts.load(tmp_path / "b.csv", STUMPS)
-    with pytest.raises(ValueError, match="does not exist"):
+    with pytest.raises(ValueError, match="missing.json': no such file"):
         ts.load(tmp_path / "missing.json", STUMPS)
 
 

@@ -411,10 +411,15 @@ def test_a_signal_during_a_status_write_is_held_until_the_write_is_whole(copy, m
         replace(tmp, path)
 
     monkeypatch.setattr(atomic_files, "atomic_replace", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        RunDir(run).set_status("interrupted", latest_checkpoint=LAST)
+    # Python's own Ctrl-C handler, whatever an earlier test of this worker process left
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            RunDir(run).set_status("interrupted", latest_checkpoint=LAST)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert json.loads((run / "status.json").read_text())["status"] == "interrupted"
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 def test_a_full_disk_at_start_leaves_no_directory(tmp_path, capsys, monkeypatch):
