@@ -135,6 +135,7 @@ class EpisodeStatistics:
         self.initial_obs = None  # (N, obs) once `begin` is given observations
         self.total_steps = 0
         self._pending: list[EpisodeBatch] = []
+        self._empty = xp.empty_batch(self.task_dim)  # what `pop` gives when nothing ended
 
     # ------------------------------------------------------------------ episodes
     def begin(self, env_ids, tasks, initial_obs=None) -> None:
@@ -200,7 +201,11 @@ class EpisodeStatistics:
             self._pending.append(
                 (None if xp.is_numpy else done, self._rows(rows, success, truncated & ~terminated))
             )
-        self._restart(done)
+        if not xp.is_numpy:
+            self._restart(done)  # masked, with no host sync
+        elif rows is not None:  # numpy: the ended rows in place (most steps end none)
+            self.returns[rows] = 0.0
+            self.lengths[rows] = 0
         return done
 
     def _rows(self, rows, success, truncated) -> EpisodeBatch:
@@ -221,7 +226,7 @@ class EpisodeStatistics:
         pop once per rollout or so; until then every step's rows wait on the device."""
         pending, self._pending = self._pending, []
         if not pending:
-            return self._xp.empty_batch(self.task_dim)
+            return self._empty
         return self._xp.gather(pending)
 
     # ------------------------------------------------------------------ checkpoints
