@@ -4,7 +4,10 @@ Each item runs real `acl3d` commands (tiny PPO runs on Stump Tracks; item 8 a tw
 cluster on this machine, scripts/ray_cluster_check.py) in a scratch folder and
 checks what a user relies on: a refused command exits 2 with one line naming the option and
 writes nothing; a run directory is used by one process at a time; a damaged checkpoint is
-skipped for the previous one; no raw traceback for any mistake on the list.
+skipped for the previous one; no raw traceback for any mistake on the list. Item 11 damages
+copies of a run as a crash or a hand edit would (a torn evals.csv, a stale LATEST, 'running'
+left by a dead process, an edited rng.json, a truncated model.zip) and checks that analyze,
+resume, campaign status and evaluate say so, carry on, and lose none of the run's other files.
 
     python scripts/probe_safety.py          # every item (a few minutes on 2 cores)
     python scripts/probe_safety.py 3 7      # some items
@@ -89,16 +92,29 @@ class Probe:
             env={**os.environ, "PYTHONPATH": str(ROOT)},
         )
 
-    def finished_run(self) -> Path:
-        """A copy of a finished 512-step run (checkpoints at 256 and 512)."""
+    def reference(self) -> Path:
+        """The finished 512-step run (checkpoints at 256 and 512), trained once; never modify."""
         if self._finished is None:
             self._finished = self.root / "finished"
             proc = self.acl3d("train", *TINY, *STEPS, "--out", self._finished)
             if proc.returncode != 0:
                 raise RuntimeError(f"the reference run failed:\n{proc.stderr}")
+        return self._finished
+
+    def finished_run(self) -> Path:
+        """A copy of the finished reference run."""
         copy = self.path("copy")
-        shutil.copytree(self._finished, copy)
+        shutil.copytree(self.reference(), copy)
         return copy
+
+    def same_weights(self, a: Path, b: Path) -> subprocess.CompletedProcess:
+        """Prints True when the final models of runs `a` and `b` hold the same weights."""
+        return self.python(
+            "import torch; from acl3d.training import students\n"
+            f"a = students.load(None, {str(a / 'final_model.zip')!r}).policy.state_dict()\n"
+            f"b = students.load(None, {str(b / 'final_model.zip')!r}).policy.state_dict()\n"
+            "print(all(torch.equal(a[k], b[k]) for k in a))"
+        )
 
 
 # ---------------------------------------------------------------------- what a user relies on
@@ -123,9 +139,15 @@ def snapshot(run: Path) -> dict[str, bytes]:
     return {str(p.relative_to(run)): p.read_bytes() for p in sorted(run.rglob("*")) if p.is_file()}
 
 
-def unchanged(before: dict, run: Path, name: str) -> Check:
+def unchanged(before: dict, run: Path, name: str, may_change: tuple[str, ...] = ()) -> Check:
+    """Every file as it was (none lost, none added), but those whose path starts with one of
+    `may_change` (what the command is meant to write)."""
     after = snapshot(run)
-    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    changed = sorted(
+        k
+        for k in set(before) | set(after)
+        if before.get(k) != after.get(k) and not k.startswith(may_change)
+    )
     return Check(name, not changed, f"changed: {changed[:5]}" if changed else "")
 
 
@@ -578,12 +600,7 @@ def evaluation_streams(probe: Probe) -> list[Check]:
         runs.append(out)
     a, b = runs
     same = (a / "episodes.csv").read_text() == (b / "episodes.csv").read_text()
-    weights = probe.python(
-        "import torch; from acl3d.training import students\n"
-        f"a = students.load(None, {str(a / 'final_model.zip')!r}).policy.state_dict()\n"
-        f"b = students.load(None, {str(b / 'final_model.zip')!r}).policy.state_dict()\n"
-        "print(all(torch.equal(a[k], b[k]) for k in a))"
-    )
+    weights = probe.same_weights(a, b)
     return [
         Check("--eval-every 256 vs 512: episodes.csv identical row for row", same),
         Check(
@@ -696,6 +713,201 @@ def input_checks(probe: Probe) -> list[Check]:
         )
     )
     return checks
+
+
+# ---------------------------------------------------------------------- run-directory faults
+LAST, FIRST = "step_000000000512", "step_000000000256"
+RESUME_WRITES = (
+    "status.json", "config.yaml", "config.json", "provenance.json", "checkpoints/LATEST",
+    "final_model", "tb/",
+)  # fmt: skip
+
+
+def dead_pid() -> int:
+    """The pid of a process that has ended (and been reaped)."""
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    return gone.pid
+
+
+def crashed_run(probe: Probe) -> Path:
+    """A copy of the finished run as a SIGKILL before the final save leaves it: no final model,
+    status.json still 'running' for a process that has ended."""
+    run = probe.finished_run()
+    for final in run.glob("final_model*"):
+        final.unlink()
+    doc = {**json.loads((run / "status.json").read_text()), "status": "running", "pid": dead_pid()}
+    (run / "status.json").write_text(json.dumps(doc))
+    return run
+
+
+def edit_rng_pos(checkpoint: Path) -> None:
+    """`"pos": 119` -> `"pos": 3119` in rng.json: still valid JSON, another random stream."""
+    rng = checkpoint / "rng.json"
+    rng.write_text(rng.read_text().replace('"pos": ', '"pos": 3', 1))
+
+
+def analysed(folder: Path) -> dict[str, str]:
+    """Run name -> status, as `acl3d analyze` wrote them in its report's evaluations.csv."""
+    table = folder / "report" / "evaluations.csv"
+    rows = table.read_text().splitlines()[1:] if table.exists() else []
+    return {Path(r.split(",")[0]).name: r.split(",")[1] for r in rows}  # NAME or runs/NAME
+
+
+def eval_rows(run: Path) -> list[str]:
+    """evals.csv without its wall-time column."""
+    return [row.rsplit(",", 1)[0] for row in (run / "evals.csv").read_text().splitlines()]
+
+
+def torn_logs(probe: Probe) -> list[Check]:
+    folder = probe.path("analyze")
+    folder.mkdir()
+    for name in ("good", "torn", "noevals"):
+        probe.finished_run().rename(folder / name)
+    with (folder / "torn" / "evals.csv").open("a") as evals:
+        evals.write("4096,82")  # a row cut by a kill
+    (folder / "noevals" / "evals.csv").unlink()
+    before = snapshot(folder)
+    proc = probe.acl3d("analyze", folder, "--reps", "100", timeout=120)
+    torn, missing = folder / "torn" / "evals.csv", folder / "noevals" / "evals.csv"
+    return [
+        no_traceback(proc, "analyze, a torn row and a missing evals.csv: exit 0", want_rc=0),
+        Check(
+            "... the torn run is named with its file and skipped",
+            f"skipping run torn: {torn} line 4 is torn" in proc.stderr,
+            proc.stderr[:160],
+        ),
+        Check(
+            "... the run without evals.csv is named and skipped",
+            f"skipping run noevals: {missing} is missing" in proc.stderr,
+        ),
+        Check("... the other run is analysed", list(analysed(folder)) == ["good"]),
+        unchanged(before, folder, "... nothing lost (only report/ written)", ("report/",)),
+    ]
+
+
+def stale_latest(probe: Probe) -> list[Check]:
+    checks = []
+    for latest, says in (("", "is empty"), ("step_000000000128", "which is not there")):
+        run = crashed_run(probe)
+        (run / "checkpoints" / "LATEST").write_text(latest)
+        before = snapshot(run)
+        proc = probe.acl3d("train", "--resume", run, timeout=300)
+        checks += [
+            no_traceback(proc, f"LATEST {latest or 'empty'}: resume, exit 0", want_rc=0, says=says),
+            Check(
+                "... from the newest checkpoint, no advice to delete",
+                "using the newest checkpoint" in proc.stderr
+                and "--overwrite" not in proc.stderr
+                and (run / "checkpoints" / "LATEST").read_text() == LAST
+                and status(run) == "finished",
+                proc.stderr.strip()[-160:],
+            ),
+            unchanged(before, run, "... nothing lost, nothing retrained", RESUME_WRITES),
+        ]
+    return checks
+
+
+def dead_process(probe: Probe) -> list[Check]:
+    camp = probe.path("campaign")
+    proc = probe.acl3d(*campaign_args(camp, 256, "--executor", "local"), timeout=300)
+    if proc.returncode != 0:
+        return [Check("a tiny campaign trains", False, proc.stderr[-160:])]
+    killed = sorted(camp.glob("runs/*"))[0]
+    doc = json.loads((killed / "status.json").read_text())
+    (killed / "status.json").write_text(json.dumps({**doc, "status": "running", "pid": dead_pid()}))
+    before = snapshot(camp)
+    shown = probe.acl3d("campaign", "status", camp, timeout=60)
+    row = next((line for line in shown.stdout.splitlines() if killed.name in line), "")
+    proc = probe.acl3d("analyze", camp, "--reps", "100", timeout=120)
+    return [
+        no_traceback(shown, "campaign status, 'running' with a dead pid: exit 0", want_rc=0),
+        Check(
+            "... shows the run crashed, counted as failed",
+            "crashed" in row and "1 failed" in shown.stdout,
+            shown.stdout.strip()[:160],
+        ),
+        no_traceback(proc, "analyze of that campaign: exit 0", want_rc=0),
+        Check(
+            "... lists the run as crashed",
+            analysed(camp).get(killed.name) == "crashed",
+            str(analysed(camp)),
+        ),
+        unchanged(before, camp, "... nothing lost (only report/ written)", ("report/",)),
+    ]
+
+
+def edited_json(probe: Probe) -> list[Check]:
+    run = crashed_run(probe)
+    edit_rng_pos(run / "checkpoints" / LAST)
+    before = snapshot(run)
+    proc = probe.acl3d("train", "--resume", run, timeout=300)
+    damaged = {
+        key.split("/", 2)[2]: data
+        for key, data in before.items()
+        if key.startswith(f"checkpoints/{LAST}/")
+    }
+    weights = probe.same_weights(probe.reference(), run)
+    checks = [
+        no_traceback(proc, "rng.json 'pos' edited: resume, exit 0", want_rc=0),
+        Check(
+            f"... {LAST} refused by name, by its manifest hash",
+            f"skipping damaged checkpoint {LAST}" in proc.stderr
+            and "rng.json differs from the checkpoint's manifest.json" in proc.stderr,
+            proc.stderr.strip()[-160:],
+        ),
+        Check(
+            "... the edited checkpoint is set aside whole",
+            snapshot(run / "checkpoints" / f".damaged_{LAST}") == damaged,
+        ),
+        Check(
+            "... retrained from step 256 to the uninterrupted run's result",
+            eval_rows(run) == eval_rows(probe.reference())
+            and weights.stdout.strip() == "True"
+            and status(run) == "finished",
+            weights.stderr[-160:],
+        ),
+        unchanged(
+            before,
+            run,
+            "... nothing else changed",
+            RESUME_WRITES + ("evals.csv", f"checkpoints/{LAST}/", f"checkpoints/.damaged_{LAST}/"),
+        ),  # fmt: skip
+    ]
+    run = crashed_run(probe)
+    for checkpoint in (run / "checkpoints").glob("step_*"):
+        edit_rng_pos(checkpoint)
+    before = snapshot(run)
+    proc = probe.acl3d("train", "--resume", run, timeout=120)
+    checks.append(refused(proc, "no complete checkpoint", "every rng.json edited: refused"))
+    checks.append(unchanged(before, run, "... nothing changed"))
+    return checks
+
+
+def evaluate_crashed(probe: Probe) -> list[Check]:
+    run = crashed_run(probe)
+    truncate(run / "checkpoints" / LAST / "model.zip")
+    before = snapshot(run)
+    proc = probe.acl3d("evaluate", run, timeout=300)
+    first = run / "checkpoints" / FIRST / "model.zip"
+    return [
+        no_traceback(proc, "evaluate, crashed run, latest model.zip truncated: exit 0", want_rc=0),
+        Check(
+            "... says it skips the damaged checkpoint, evaluates step 256",
+            f"skipping damaged checkpoint {LAST}" in proc.stderr
+            and f"evaluating {first} (step 256)" in proc.stdout,
+            (proc.stderr + proc.stdout)[:160],
+        ),
+        unchanged(before, run, "... nothing changed in the run"),
+    ]
+
+
+@item(11, "run-directory faults: torn logs, stale LATEST, dead process, edited JSON, evaluate")
+def run_directory_faults(probe: Probe) -> list[Check]:
+    """Issue items 3, 8, 9, 10 and 11, each on copies of the reference run; 'crashed' is how a
+    SIGKILL before the final save leaves a run."""
+    stories = (torn_logs, stale_latest, dead_process, edited_json, evaluate_crashed)
+    return [check for story in stories for check in story(probe)]
 
 
 def main() -> int:
