@@ -1,15 +1,17 @@
-"""The many-world simulation's speed: env steps/s through `ManyWorldTracks` against raw physics.
+"""The many-world simulation's speed: env steps/s through `ManyWorlds` against raw physics.
 
     python scripts/bench_gpu.py --device cuda --sizes 1024 4096 16384
     python scripts/bench_gpu.py --device cpu --sizes 4 --steps 20      # Warp's CPU device
     python scripts/bench_gpu.py --first-step                           # a new process's start
 
-Per world count, in one run on one device (random actions in [-1, 1], classic biped):
-* raw physics: `WarpSimulation.step` alone (random controls, no rules, no resets, the tracks'
-  per-world terrain and caps) — what MuJoCo Warp gives;
-* env: `ManyWorldTracks.step` (servo caps, physics, rules, episode statistics, batched resets
-  with terrain generated on the CPU), Stump Tracks at a task with stumps (h=1, spacing 3), and
-  its ratio to raw physics;
+    python scripts/bench_gpu.py --env terrain3d --body big_quadru      # another family
+
+Per world count, in one run on one device (random actions in [-1, 1], the env's default body):
+* raw physics: `WarpSimulation.step` alone (random controls, no rules, no resets, the worlds'
+  own terrain and caps) — what MuJoCo Warp gives;
+* env: `ManyWorlds.step` (servo caps, physics, rules, episode statistics, batched resets with
+  their terrain), on a task with obstacles everywhere (Stump Tracks h=1, spacing 3; 3D Terrain
+  with hills, cross-slope, roughness and blocks), and its ratio to raw physics;
 * resets' host share: the fraction of the env's time spent in the batched resets (terrain
   generation and upload included), timed with device synchronisation in a separate pass.
 Each cell runs `--warmup` steps first (graph capture, kernel loading). `--first-step` times a
@@ -26,9 +28,13 @@ import time
 
 import torch
 
-from acl3d.envs.many_worlds import ManyWorldTracks
+from acl3d.envs.many_worlds import ManyWorlds, many_worlds
 
-TASK = {"stump_height": 1.0, "obstacle_spacing": 3.0}
+# a task with obstacles everywhere, per env
+TASKS = {
+    "stump-tracks": {"stump_height": 1.0, "obstacle_spacing": 3.0},
+    "terrain3d": {"hill_slope": 0.2, "cross_slope": 0.15, "roughness": 0.1, "block_height": 0.3},
+}
 
 
 def _sync(device: torch.device) -> None:
@@ -36,15 +42,15 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def make_env(n: int, device: str, track: str, body: str) -> ManyWorldTracks:
-    env = ManyWorldTracks(n, device=device, track=track, body=body)
-    if track == "stump":
-        env.tasks[:] = env.task_space.to_vector(TASK)
+def make_env(n: int, device: str, name: str, body: str | None) -> ManyWorlds:
+    env = many_worlds(name, n, device, **({} if body is None else {"body": body}))
+    if name in TASKS:
+        env.tasks[:] = env.task_space.to_vector(TASKS[name])
     env.reset(seed=0)
     return env
 
 
-def raw_rate(env: ManyWorldTracks, steps: int, warmup: int) -> float:
+def raw_rate(env: ManyWorlds, steps: int, warmup: int) -> float:
     sim, g = env.sim, torch.Generator(device=env.device).manual_seed(1)
     ctrl = sim.field("ctrl")
     for k in range(warmup + steps):
@@ -57,7 +63,7 @@ def raw_rate(env: ManyWorldTracks, steps: int, warmup: int) -> float:
     return env.num_envs * steps / (time.perf_counter() - t0)
 
 
-def env_rate(env: ManyWorldTracks, steps: int, warmup: int) -> tuple[float, float]:
+def env_rate(env: ManyWorlds, steps: int, warmup: int) -> tuple[float, float]:
     """(env steps/s, episodes finished per env step)."""
     g = torch.Generator(device=env.device).manual_seed(2)
     shape, finished = (env.num_envs, env.action_size), 0
@@ -74,7 +80,7 @@ def env_rate(env: ManyWorldTracks, steps: int, warmup: int) -> tuple[float, floa
     return env.num_envs * steps / (time.perf_counter() - t0), finished / steps
 
 
-def reset_share(env: ManyWorldTracks, steps: int) -> float:
+def reset_share(env: ManyWorlds, steps: int) -> float:
     """Share of the env's step time spent in batched resets (synchronised timing)."""
     spent = [0.0]
     reset = env._reset_worlds
@@ -101,11 +107,11 @@ def reset_share(env: ManyWorldTracks, steps: int) -> float:
     return spent[0] / total
 
 
-def first_step_seconds(device: str, n: int) -> float:
+def first_step_seconds(device: str, n: int, name: str) -> float:
     code = (
         "import time; t0 = time.perf_counter(); import torch;"
-        "from acl3d.envs.many_worlds import ManyWorldTracks;"
-        f"env = ManyWorldTracks({n}, device={device!r}); env.reset(seed=0);"
+        "from acl3d.envs.many_worlds import many_worlds;"
+        f"env = many_worlds({name!r}, {n}, {device!r}); env.reset(seed=0);"
         "env.step(torch.zeros((env.num_envs, env.action_size), device=env.device));"
         f"torch.cuda.synchronize() if {device!r}.startswith('cuda') else None;"
         "print(time.perf_counter() - t0)"
@@ -120,32 +126,32 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096, 16384])
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--warmup", type=int, default=20)
-    p.add_argument("--track", default="stump", choices=("stump", "hexagon"))
-    p.add_argument("--body", default="classic_bipedal")
+    p.add_argument("--env", default="stump-tracks", help="stump-tracks, hexagon-tracks, terrain3d")
+    p.add_argument("--body", help="default: the env's")
     p.add_argument("--first-step", action="store_true", help="also time a new process's start")
     p.add_argument("--json", help="write the rows to this file too")
     a = p.parse_args()
     rows = []
-    print(f"{a.track} tracks, {a.body}, device {a.device}, {a.steps} timed steps per cell")
+    print(f"{a.env}, {a.body or 'its default body'}, device {a.device}, {a.steps} timed steps")
     print(f"{'worlds':>8} {'raw physics/s':>14} {'env steps/s':>12} {'ratio':>6} "
           f"{'resets/step':>11} {'reset share':>11}")  # fmt: skip
     for n in a.sizes:
         t0 = time.perf_counter()
-        env = make_env(n, a.device, a.track, a.body)
+        env = make_env(n, a.device, a.env, a.body)
         build = time.perf_counter() - t0
         raw = raw_rate(env, a.steps, a.warmup)
         env.reset(seed=0)
         rate, resets = env_rate(env, a.steps, a.warmup)
         share = reset_share(env, max(a.steps // 4, 10))
         row = dict(worlds=n, raw=raw, env=rate, ratio=rate / raw, resets_per_step=resets,
-                   reset_share=share, build_s=build, device=a.device, track=a.track)  # fmt: skip
+                   reset_share=share, build_s=build, device=a.device, env_name=a.env)  # fmt: skip
         rows.append(row)
         print(f"{n:>8} {raw:>14,.0f} {rate:>12,.0f} {rate / raw:>6.2f} {resets:>11.1f} "
               f"{share:>11.1%}   (build + first reset {build:.1f} s)", flush=True)  # fmt: skip
         env.close()
         del env
     if a.first_step:
-        seconds = first_step_seconds(a.device, a.sizes[0])
+        seconds = first_step_seconds(a.device, a.sizes[0], a.env)
         rows.append({"first_step_s": seconds, "worlds": a.sizes[0], "device": a.device})
         print(f"a new process's first env step ({a.sizes[0]} worlds): {seconds:.1f} s")
     if a.json:

@@ -5,7 +5,7 @@
 #
 # 1. the CPU batched env on this machine's cores (all but 4), beside
 # 2. the many-world simulation on the GPU (scripts/bench_gpu.py: raw physics, env steps/s with
-#    rules and resets, a new process's first step) on the 4 others;
+#    rules and resets, a new process's first step; Stump Tracks, then 3D Terrain) on the 4 others;
 # 3. rsl-ppo on Stump Tracks (stump-v1's task space, test set and teacher settings; ALP-GMM's
 #    refits in a worker process, applied 100 episodes after their fit point) for STEPS
 #    env steps (default 20M, TeachMyAgent's budget), ALP-GMM seed 0 alone (its steps/s are the
@@ -23,6 +23,9 @@ taskset -c 4-$((cores - 1)) python3 scripts/bench_batched.py --steps 3000 --size
 cpu=$!
 taskset -c 0-3 python3 scripts/bench_gpu.py --device cuda --sizes 4096 16384 --steps 100 \
   --first-step --json "$out/bench_gpu.json" 2>&1 | grep -v '^Module' | tee "$out/bench_gpu.txt"
+taskset -c 0-3 python3 scripts/bench_gpu.py --device cuda --env terrain3d --sizes 4096 16384 \
+  --steps 100 --json "$out/bench_gpu_terrain3d.json" 2>&1 | grep -v '^Module' \
+  | tee "$out/bench_gpu_terrain3d.txt"
 wait $cpu
 
 train() {  # teacher seed

@@ -14,7 +14,7 @@ import torch
 
 pytest.importorskip("mujoco_warp", reason="the [gpu] extra: pip install 'acl3d[gpu]'")
 
-from acl3d.envs.many_worlds import ManyWorldTracks  # noqa: E402
+from acl3d.envs.many_worlds import ManyWorldTracks, many_worlds  # noqa: E402
 from acl3d.envs.track_env import TrackEnv  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("warp")
@@ -51,16 +51,18 @@ def _actions(env, seed):
 def _assert_rules_agree(worlds) -> None:
     """The torch rules' observation, head x and shaping equal the numpy rules' on the worlds'
     current physics (float32 tolerance)."""
-    rules = worlds.template.rules
+    rules, physics = worlds.template.rules, WorldsAsNumpy(worlds.sim)
     rows = rules.new_rows(worlds.num_envs)
-    rows.heights[:, : worlds.heights.shape[1]] = worlds.heights.double().numpy()
-    x_np, obs_np = rules.observe(WorldsAsNumpy(worlds.sim), rows)
+    rows.heights[:, ..., : worlds.heights.shape[-1]] = worlds.heights.double().numpy()
+    x_np, obs_np = rules.observe(physics, rows)
     x_t, obs_t = worlds.rules.observe(worlds.sim, worlds.heights)
     assert obs_np.shape == (worlds.num_envs, worlds.observation_size)
     np.testing.assert_allclose(x_t.numpy(), x_np, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(obs_t.numpy(), obs_np, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(
-        worlds.rules.potential(x_t, obs_t).numpy(), rules.potential(None, x_np, obs_np), atol=1e-4
+        worlds.rules.potential(worlds.sim, x_t, obs_t).numpy(),
+        rules.potential(physics, x_np, obs_np),
+        atol=1e-4,
     )
 
 
@@ -77,6 +79,18 @@ def test_torch_rules_of_a_free_3d_body_equal_numpy_rules():
         spider.step(_actions(spider, 30 + k))
     _assert_rules_agree(spider)
     assert not spider.template.rules.body.planar
+
+
+def test_3d_terrain_runs_as_many_worlds_with_the_height_scan():
+    field = many_worlds("terrain3d", 2, "cpu", body="big_quadru")
+    task = field.task_space.to_vector({"hill_slope": 0.2, "cross_slope": 0.15, "roughness": 0.1})
+    field.tasks[:] = task
+    field.reset(seed=2)
+    assert float(field.heights.std()) > 0  # a field that varies, read by the height scan
+    for k in range(3):
+        obs, reward, terminated, truncated, infos = field.step(_actions(field, 40 + k))
+        assert torch.isfinite(obs).all() and torch.isfinite(reward).all()
+    _assert_rules_agree(field)
 
 
 def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):

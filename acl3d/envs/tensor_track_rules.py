@@ -53,8 +53,9 @@ class TensorHeightLineLidar:
         out[:, : self.ncol] = 0.0
         return out
 
-    def read(self, heights: torch.Tensor, origins: torch.Tensor) -> torch.Tensor:
-        """(N, nb_rays) fractions of the range (1: no hit) from origins (N, 3)."""
+    def read(self, heights: torch.Tensor, origins: torch.Tensor, rotations=None) -> torch.Tensor:
+        """(N, nb_rays) fractions of the range (1: no hit) from origins (N, 3); the roots'
+        rotations are not used (the rays stay sagittal)."""
         n = heights.shape[0]
         x0, z0 = origins[:, 0], origins[:, 2]
         j = ((x0 - self.x_min) / self.cell).long().clamp_(0, self.ncol - 2)
@@ -90,12 +91,8 @@ class TensorTrackRules:
     """
 
     def __init__(self, rules: TrackRules, device: torch.device, dtype=torch.float32):
-        if not isinstance(rules.lidar, HeightLineLidar):
-            raise ValueError(
-                f"observation={type(rules.lidar).__name__}; the many-world tracks read the "
-                "height-line lidar only (observation='lidar')"
-            )
         self.device, self.dtype = device, dtype
+        self.sensor = self.make_sensor(rules)
         b, body = rules.bound, rules.body
         self.body, self.obs_size, self.end_x = body, rules.obs_size, rules.end_x
         self.head_size, self.grasp_size = rules.head_size, rules.grasp_size
@@ -113,8 +110,17 @@ class TensorTrackRules:
         self.critical_sensors = _index(TrackRules._sensor_adr(b.model, b.critical_geom_ids), device)
         self.nb_motors = len(b.speeds)
         self.lidar_col = rules._lidar_col
-        self.lidar = TensorHeightLineLidar(rules.lidar, device, dtype)
         self.planar_gains = torch.tensor(_PLANAR_GAINS, **f)
+
+    def make_sensor(self, rules: TrackRules):
+        """The terrain sensor on tensors (`read(heights, origins, rotations)`, `nb_rays`,
+        `empty_heights(n, device, dtype)`): the tracks' height-line lidar."""
+        if not isinstance(rules.lidar, HeightLineLidar):
+            raise ValueError(
+                f"observation={type(rules.lidar).__name__}; the many-world tracks read the "
+                "height-line lidar only (observation='lidar')"
+            )
+        return TensorHeightLineLidar(rules.lidar, self.device, self.dtype)
 
     # ------------------------------------------------------------------ actions
     def servo(self, actions: torch.Tensor, sim: Simulation) -> None:
@@ -163,27 +169,36 @@ class TensorTrackRules:
         )
         motor = obs[:, self.head_size : self.head_size + self.motor_size]
         motor[:, self.motor_order] = state
-        root = sim.field("xpos")[:, self.root]
-        lidar = self.lidar.read(heights, root)
-        obs[:, self.lidar_col : self.lidar_col + self.lidar.nb_rays] = lidar
+        root, rotation = sim.field("xpos")[:, self.root], sim.field("xmat")[:, self.root]
+        readings = self.sensor.read(heights, root, rotation)
+        obs[:, self.lidar_col : self.lidar_col + self.sensor.nb_rays] = readings
         return x, obs
 
-    def potential(self, x: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+    def potential(self, sim: Simulation, x: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        """(N,) shaping whose differences reward a step."""
         shaping = PROGRESS_GAIN * x
         if self.body.head_angle_reward:
             shaping = shaping - ANGLE_PENALTY * obs[:, 0].abs()
         return shaping
 
+    def critical(self, sim: Simulation) -> torch.Tensor:
+        """(N,) a critical part of the body touches something."""
+        if not len(self.critical_sensors):
+            return torch.zeros(sim.nworld, dtype=torch.bool, device=self.device)
+        return (sim.field("sensordata")[:, self.critical_sensors] > 0.0).any(dim=1)
+
     # ------------------------------------------------------------------ outcome
     def outcome(self, sim: Simulation, actions, heights, prev_shaping):
-        """(obs, reward, terminated, shaping) after a physics step; `prev_shaping` (N,) is the
-        last step's shaping."""
+        """(obs, reward, terminated, shaping, success) after a physics step; `prev_shaping` (N,)
+        is the last step's shaping; success None: judged by the return (the tracks)."""
         x, obs = self.observe(sim, heights)
-        shaping = self.potential(x, obs)
-        torque_use = actions.abs().clamp(max=1.0).sum(dim=1)
-        reward = shaping - prev_shaping - self.body.torque_cost_per_unit * torque_use
-        fail = x < 0.0
-        if len(self.critical_sensors):
-            fail |= (sim.field("sensordata")[:, self.critical_sensors] > 0.0).any(dim=1)
+        shaping = self.potential(sim, x, obs)
+        reward = shaping - prev_shaping - self.body.torque_cost_per_unit * torque_use(actions)
+        fail = self.critical(sim) | (x < 0.0)
         reward = torch.where(fail, FAIL_REWARD, reward)
-        return obs, reward, fail | (x > self.end_x), shaping
+        return obs, reward, fail | (x > self.end_x), shaping, None
+
+
+def torque_use(actions: torch.Tensor) -> torch.Tensor:
+    """(N,) sum of |a| clipped at 1: what the torque cost is proportional to."""
+    return actions.abs().clamp(max=1.0).sum(dim=1)
