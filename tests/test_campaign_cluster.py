@@ -24,7 +24,16 @@ from ray_cluster_check import (  # noqa: E402
     wait_for,
 )
 
-STEPS = 1024  # four 256-step rollouts per run, a checkpoint after each
+# sixteen 256-step rollouts per run, a checkpoint after each: long enough that the victim's
+# attempt cannot finish in the seconds its node's processes take to die after the kill
+STEPS = 4096
+
+
+def early(run: Path) -> bool:
+    """The run has a checkpoint and most of its rollouts still to train: a kill now lands
+    mid-run (near its end the run may finish before its node's processes die)."""
+    name = checkpoint(run)
+    return bool(name) and int(name.rsplit("_", 1)[-1]) <= STEPS // 4
 
 
 def test_campaign_runs_on_both_nodes_and_survives_a_node_killed_mid_run(tmp_path):
@@ -41,7 +50,7 @@ def test_campaign_runs_on_both_nodes_and_survives_a_node_killed_mid_run(tmp_path
 
             def on_worker():
                 for run, _, _, node in placement(runs, c.names):
-                    if node == "worker" and running(runs / run) and checkpoint(runs / run):
+                    if node == "worker" and running(runs / run) and early(runs / run):
                         return run
                 return None
 
