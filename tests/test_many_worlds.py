@@ -171,3 +171,33 @@ def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
     assert episodes == (parts / "episodes.csv").read_text()
     evals = [line.split(",")[:6] for line in (whole / "evals.csv").read_text().splitlines()]
     assert evals == [line.split(",")[:6] for line in (parts / "evals.csv").read_text().splitlines()]
+
+
+def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
+    import gymnasium as gym
+
+    from acl3d.teachers import make
+
+    envs = gym.make_vec(
+        "acl3d/StumpTracks-v0", num_envs=2, vectorization_mode="vector_entry_point", device="cpu"
+    )
+    teacher = make("random", envs.unwrapped.task_space, seed=0)
+    taught = gym.make_vec(
+        "acl3d/StumpTracks-v0", num_envs=2, vectorization_mode="vector_entry_point",
+        device="cpu", teacher=teacher, max_episode_steps=5,
+    )  # fmt: skip
+    obs, info = envs.reset(seed=0, options={"task": {"stump_height": 0.5}})
+    assert isinstance(obs, torch.Tensor) and obs.shape == (2, *envs.single_observation_space.shape)
+    assert envs.observation_space.shape == (2, *envs.single_observation_space.shape)
+    obs, reward, terminated, truncated, infos = envs.step(envs.action_space.sample())
+    assert reward.shape == (2,) and "final_obs" in infos
+    taught.reset(seed=1)
+    for _ in range(5):
+        *_, truncated, infos = taught.step(np.zeros((2, 4), np.float32))
+    assert bool(truncated.all()) and teacher.nb_episodes == 2  # the teacher saw both episodes
+    with pytest.raises(ValueError, match="env='acl3d/Parkour-v0' on the many-world"):
+        gym.make_vec(
+            "acl3d/Parkour-v0", num_envs=2, vectorization_mode="vector_entry_point", device="cpu"
+        )
+    with pytest.raises(ValueError, match="actions: non-finite"):
+        envs.step(np.full((2, 4), np.nan, np.float32))

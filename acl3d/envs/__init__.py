@@ -51,7 +51,7 @@ ENV_IDS: dict[str, str] = {name: reg.id for name, reg in REGISTRY.items()}
 ENV_NAMES: tuple[str, ...] = tuple(REGISTRY)
 
 # Arguments of the batched vector env alone (`gymnasium.make_vec(..., "vector_entry_point")`).
-VECTOR_ONLY_KWARGS = ("teacher", "curriculum_sync", "threads", "autoreset_mode")
+VECTOR_ONLY_KWARGS = ("teacher", "curriculum_sync", "threads", "autoreset_mode", "device")
 
 
 class SingleEnvEntryPoint:

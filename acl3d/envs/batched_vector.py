@@ -183,21 +183,33 @@ def _stack_infos(infos: list[dict], mask: np.ndarray) -> dict:
     return out
 
 
-def stump_tracks(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
+def vector_env(env_id: str, num_envs: int, device, kwargs: dict) -> VectorEnv:
+    """The CPU batched env, or with `device=` the many-world simulation on MuJoCo Warp
+    (`acl3d.envs.warp_vector.WarpVectorEnv`: torch tensors on that device)."""
+    if device is None:
+        return BatchedVectorEnv(env_id, num_envs, **kwargs)
+    if "threads" in kwargs:
+        raise validation.fail("threads", kwargs["threads"], "not given with device=")
+    from acl3d.envs.warp_vector import WarpVectorEnv
+
+    return WarpVectorEnv(env_id, num_envs, device, **kwargs)
+
+
+def stump_tracks(num_envs: int = 1, device=None, **kwargs) -> VectorEnv:
     """Vector entry point of acl3d/StumpTracks-v0."""
-    return BatchedVectorEnv("acl3d/StumpTracks-v0", num_envs, **kwargs)
+    return vector_env("acl3d/StumpTracks-v0", num_envs, device, kwargs)
 
 
-def hexagon_tracks(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
+def hexagon_tracks(num_envs: int = 1, device=None, **kwargs) -> VectorEnv:
     """Vector entry point of acl3d/HexagonTracks-v0."""
-    return BatchedVectorEnv("acl3d/HexagonTracks-v0", num_envs, **kwargs)
+    return vector_env("acl3d/HexagonTracks-v0", num_envs, device, kwargs)
 
 
-def parkour(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
-    """Vector entry point of acl3d/Parkour-v0."""
-    return BatchedVectorEnv("acl3d/Parkour-v0", num_envs, **kwargs)
+def parkour(num_envs: int = 1, device=None, **kwargs) -> VectorEnv:
+    """Vector entry point of acl3d/Parkour-v0 (`device=` is refused: Parkour is CPU-only)."""
+    return vector_env("acl3d/Parkour-v0", num_envs, device, kwargs)
 
 
-def terrain3d(num_envs: int = 1, **kwargs) -> BatchedVectorEnv:
+def terrain3d(num_envs: int = 1, device=None, **kwargs) -> VectorEnv:
     """Vector entry point of acl3d/Terrain3D-v0."""
-    return BatchedVectorEnv("acl3d/Terrain3D-v0", num_envs, **kwargs)
+    return vector_env("acl3d/Terrain3D-v0", num_envs, device, kwargs)
