@@ -179,12 +179,17 @@ def test_random_proposals_do_not_move_though_the_learner_improves():
     assert abs(late - early) < 0.05, f"random moved: {early:.2f} -> {late:.2f}"
 
 
-@pytest.mark.parametrize("name", ["robust-plr", "accel"])
-def test_replayed_levels_get_harder_as_the_learner_improves(name):
-    """Half of PLR's proposals are new uniform levels (exploratory: they do not train the
-    learner); the replayed ones, which train it, follow its frontier. A slower learner keeps the
+@pytest.mark.parametrize(
+    "name, extra",
+    [("robust-plr", {}), ("accel", {}), ("accel", {"easy_task": [0.0, 6.0]})],
+    ids=["robust-plr", "accel", "accel-from-easy-corner"],
+)
+def test_replayed_levels_get_harder_as_the_learner_improves(name, extra):
+    """Half of PLR's proposals are new levels (exploratory: they do not train the learner), uniform
+    or, for ACCEL given `easy_task`, that one easy level, which ACCEL edits its way up from; the
+    replayed ones, which train the learner, follow its frontier. A slower learner keeps the
     frontier inside the space for the whole run."""
-    difficulties, skills, exploratory = run(name, 2000, rate=0.002)
+    difficulties, skills, exploratory = run(name, 2000, rate=0.002, **extra)
     replayed = ~exploratory
     window = np.arange(len(difficulties)) // 400
     early = difficulties[replayed & (window == 0)].mean()

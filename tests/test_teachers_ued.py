@@ -119,6 +119,18 @@ def test_accel_starts_from_the_easy_task():
         make("accel", SPACE, easy_task=["0", "0"])
 
 
+def test_accel_from_the_easy_task_replays_it_and_grows_its_buffer_by_edits():
+    """New levels from `easy_task` are all one level, so a buffer counted in distinct levels
+    never reaches `minimum_fill_ratio`: replay (and with it editing) starts once that level is
+    in, and the buffer fills with its edited descendants."""
+    accel = make("accel", SPACE, seed=7, easy_task=[0.0, 0.0], buffer_size=20)
+    _play(accel, 200, lambda t: float(t.sum()))
+    kinds = accel.bk["kinds"]
+    assert kinds[0] == 0 and kinds.count(1) > 50 and kinds.count(2) > 50
+    assert len(accel.scores) == 20
+    assert np.ptp(accel.levels, axis=0).min() > 0.1  # edits moved away from the easy corner
+
+
 def test_terrain_levels_promote_demote_and_wrap_past_the_top():
     tl = make(
         "terrain-levels",

@@ -17,7 +17,9 @@ the level's previous mean return, so the teacher still works, more crudely.
 ACCEL: after each replay, the replayed level is edited (`nb_edits` times one random dimension
 moved by ±`edit_step` of its range, clipped to the bounds); edited levels are played next, scored
 and inserted if they beat the buffer's lowest score. New levels start from `easy_task` when
-given (DCD's ACCEL starts from easy levels), else uniform.
+given (DCD's ACCEL starts from easy levels), else uniform; from `easy_task`, replay starts as
+soon as the buffer holds that level (all new levels are that one level, so the fill ratio would
+never be reached and nothing would ever be replayed or edited).
 
 Robust PLR trains the student only on replayed levels. The teacher marks every proposed task as
 exploratory (new or edited level) or not (`is_exploratory(task)`, and the "exploratory" book-
@@ -336,6 +338,12 @@ class ACCEL(RobustPLR):
 
     def _new_level(self) -> np.ndarray:
         return self.uniform_task() if self.easy_task is None else self.easy_task.copy()
+
+    def _can_replay(self) -> bool:
+        """From `easy_task` every new level is that one level, so the buffer could never reach
+        `minimum_fill_ratio` on new levels: replay starts once it is in, and the buffer grows
+        by editing it (ACCEL's start from easy levels)."""
+        return len(self.scores) > 0 if self.easy_task is not None else super()._can_replay()
 
     def _after_replay(self, index: int) -> None:
         if not len(self._editable):
