@@ -208,6 +208,25 @@ def test_self_paced_climbs_from_its_easy_start():
     assert late > early + 0.03, f"self-paced: proposed difficulty {early:.2f} -> {late:.2f}"
 
 
+# Setter-Solver's defaults (TeachMyAgent's) take one Adam step at 3e-4 every 50 episodes: over
+# the 2000 episodes of the tests above that is 40 small steps, the flow barely leaves its initial
+# near-uniform cover, and the proposals do not move (difficulty 0.51 -> 0.48). Five times as many
+# steps, each ten times larger, for the setter and the judge alike, move them within 1000.
+FAST_SETTER = {"update_frequency": 10, "setter_lr": 3e-3, "judge_lr": 3e-3}
+
+
+def test_setter_solver_proposals_get_harder_with_a_faster_setter():
+    """With non-default update settings (FAST_SETTER): the defaults are sized for the tens of
+    thousands of episodes of a real run and do not move within a unit test's episodes (see
+    docs/teachers.md). The setter first narrows onto feasible (easier) goals, then follows the
+    learner up; the proposals of the last 200 episodes are harder than those of the first 200
+    (about 0.45 -> 0.85; seeds 1 and 2: 0.45 -> 0.71, 0.47 -> 0.83). About 5 s."""
+    difficulties, skills, _ = run("setter-solver", 1000, **FAST_SETTER)
+    early, late = windows(difficulties)[[0, -1]]
+    assert skills[-1] > skills[0] + 0.2, f"the learner did not improve ({skills[-1]:.2f})"
+    assert late > early + 0.2, f"setter-solver: proposed difficulty {early:.2f} -> {late:.2f}"
+
+
 LESSONS = {
     "measure": "reward",
     "thresholds": [150.0, 150.0, 150.0],
