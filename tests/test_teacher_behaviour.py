@@ -4,7 +4,7 @@ The learner's skill grows only with practice near its frontier: an episode on a 
 difficulty d succeeds with probability sigmoid((skill - d) / 0.03), and playing a task just past
 the frontier raises the skill. A teacher that does what its paper says proposes harder tasks as
 the skill grows; one stuck on a fixed region (a window on the hard corner, a box around one
-random task) fails these tests. Each test runs in about a second.
+random task) fails these tests. Each test runs in about a second (Setter-Solver's in about 5).
 
 Teachers that need more than returns get what a training loop gives them (their `needs`): each
 stub episode is STEPS steps sharing its return, its states are (task, fraction of the episode
