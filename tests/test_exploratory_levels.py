@@ -14,7 +14,7 @@ from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from test_resume import STEPS, assert_same_run
 
-from acl3d.campaign.spec import check_options, parse_set
+from acl3d.campaign.options import check_options, parse_set
 from acl3d.cli import main
 from acl3d.teachers.base import load_state
 from acl3d.teachers.controller import TeacherController

@@ -5,8 +5,9 @@ them (continuing an interrupted campaign in the same directory). Each run is an 
 directory under `out/runs/`, which `acl3d analyze` reads.
 """
 
+from acl3d.campaign.options import parse_set
 from acl3d.campaign.runner import CampaignDir, CampaignResult, run_campaign
-from acl3d.campaign.spec import CampaignSpec, RunSpec, builtin_names, load_spec, parse_set
+from acl3d.campaign.spec import CampaignSpec, RunSpec, builtin_names, load_spec
 
 __all__ = [
     "CampaignDir",

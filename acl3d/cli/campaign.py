@@ -61,7 +61,8 @@ def _scaling_options(p: argparse.ArgumentParser) -> None:
 
 
 def _spec(args):
-    from acl3d.campaign.spec import load_spec, parse_set
+    from acl3d.campaign.options import parse_set
+    from acl3d.campaign.spec import load_spec
 
     spec = load_spec(args.spec).scaled(args.budget, args.seeds, parse_set(args.sets))
     return narrowed(spec, args.only or [])

@@ -39,7 +39,7 @@ from torch.distributions import MultivariateNormal, kl_divergence
 from acl3d import validation
 from acl3d.teachers import histories
 from acl3d.teachers.base import RunFacts, Teacher
-from acl3d.teachers.torch_utils import check_positive
+from acl3d.teachers.torch_utils import check_positive, conjugate_gradient
 
 _CG_DEFAULTS = {
     "n_epochs_line_search": 10,
@@ -47,24 +47,6 @@ _CG_DEFAULTS = {
     "cg_damping": 1e-2,
     "cg_residual_tol": 1e-10,
 }
-
-
-def conjugate_gradient(fvp, b: torch.Tensor, iters: int, residual_tol: float) -> torch.Tensor:
-    """Solve F x = b for a symmetric positive-definite F given only x -> F x."""
-    x = torch.zeros_like(b)
-    r, p = b.clone(), b.clone()
-    rr = r @ r
-    for _ in range(iters):
-        if rr < residual_tol:
-            break
-        fp = fvp(p)
-        step = rr / (p @ fp)
-        x = x + step * p
-        r = r - step * fp
-        rr_new = r @ r
-        p = r + (rr_new / rr) * p
-        rr = rr_new
-    return x
 
 
 class SelfPaced(Teacher):

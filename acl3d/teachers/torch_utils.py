@@ -75,3 +75,21 @@ def generator_state(gen: torch.Generator) -> np.ndarray:
 
 def load_generator_state(gen: torch.Generator, state) -> None:
     gen.set_state(torch.as_tensor(np.asarray(state, dtype=np.uint8)))
+
+
+def conjugate_gradient(fvp, b: torch.Tensor, iters: int, residual_tol: float) -> torch.Tensor:
+    """Solve F x = b for a symmetric positive-definite F given only x -> F x."""
+    x = torch.zeros_like(b)
+    r, p = b.clone(), b.clone()
+    rr = r @ r
+    for _ in range(iters):
+        if rr < residual_tol:
+            break
+        fp = fvp(p)
+        step = rr / (p @ fp)
+        x = x + step * p
+        r = r - step * fp
+        rr_new = r @ r
+        p = r + (rr_new / rr) * p
+        rr = rr_new
+    return x
