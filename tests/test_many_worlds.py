@@ -97,16 +97,15 @@ def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):
     cpu = TrackEnv(body="classic_bipedal")
     obs_cpu, _ = cpu.reset(seed=5, options={"task": FLAT})
     # world 1 takes the CPU env's terrain and state
-    sim, n = worlds.sim, worlds.num_envs
+    sim = worlds.sim
     heights = torch.as_tensor(cpu.arena.heights, dtype=torch.float32)
     worlds.heights[1, : len(heights)] = heights
     sim.terrain("terrain")[1] = torch.as_tensor(
         cpu.model.hfield_data.reshape(2, -1), dtype=torch.float32
     )
-    mask = torch.tensor([False, True])
-    qpos = torch.as_tensor(cpu.data.qpos, dtype=torch.float32).expand(n, -1)
-    qvel = torch.as_tensor(cpu.data.qvel, dtype=torch.float32).expand(n, -1)
-    sim.reset_worlds(mask, qpos, qvel)
+    qpos = torch.as_tensor(cpu.data.qpos, dtype=torch.float32)[None]
+    qvel = torch.as_tensor(cpu.data.qvel, dtype=torch.float32)[None]
+    sim.reset_worlds(torch.tensor([1]), qpos, qvel)
     worlds.prev_shaping[1] = float(cpu.rows.prev_shaping[0])
     worlds.elapsed[1] = 0
     # float32 against float64: ~1e-6 until a foot's contact starts (the 6th step of this seed,
@@ -137,6 +136,30 @@ def test_resetting_some_worlds_leaves_the_others_untouched(worlds):
     assert torch.equal(obs[1], obs_before[1])
     assert not torch.equal(sim.terrain("terrain")[0], terrain_before)  # world 0's new stumps
     assert worlds.stats.returns[0] == 0 and worlds.elapsed[0] == 0
+
+
+def test_a_reset_worlds_first_observation_is_that_of_its_reset_state(worlds):
+    """The start worlds compute what a `forward` of the worlds themselves gives."""
+    worlds.step(_actions(worlds, 13))
+    task = worlds.task_space.to_vector({"stump_height": 1.0, "obstacle_spacing": 2.0})
+    obs = worlds._reset_worlds(np.array([1]), task[None], worlds.obs)
+    worlds.sim.forward()
+    x, again = worlds.rules.observe(worlds.sim, worlds.heights)
+    assert torch.equal(obs[1], again[1])
+    assert worlds.prev_shaping[1] == worlds.rules.potential(worlds.sim, x, again)[1]
+
+
+def test_more_resets_than_start_worlds_are_done_in_parts():
+    envs = [ManyWorldTracks(3, device="cpu", start_worlds=k) for k in (1, 3)]
+    assert [env.starts.nworld for env in envs] == [1, 3]
+    runs = []
+    for env in envs:
+        env.tasks[:] = env.task_space.to_vector({"stump_height": 1.5, "obstacle_spacing": 1.0})
+        first = env.reset(seed=6)
+        runs.append([first, *(env.step(_actions(env, 50 + k))[0] for k in range(2))])
+    assert all(torch.equal(a, b) for a, b in zip(*runs))
+    with pytest.raises(ValueError, match="start_worlds"):
+        ManyWorldTracks(3, device="cpu", start_worlds=4)
 
 
 def test_a_restored_state_continues_as_the_original(worlds):

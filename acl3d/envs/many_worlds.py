@@ -9,8 +9,9 @@ caps, the family's rules on torch, episode sums in one `EpisodeStatistics` on th
 
 A step: servos (per-world force caps) -> `frame_skip` substeps (one CUDA graph) -> rules ->
 episode statistics; then, if any world finished, one batched reset of those worlds: their
-curriculum tasks, their terrain, their bodies placed and pushed, and one `forward` of the
-simulation (a graph too). Plain stumps (Stump Tracks' task space) are built for all resetting
+curriculum tasks, their terrain, their bodies placed and pushed, and their first observations
+from a `forward` of a small second simulation, the start worlds (a graph too), so that resets
+cost physics in proportion to the worlds that reset, not to N. Plain stumps (Stump Tracks' task space) are built for all resetting
 worlds at once on the device (`TensorStumpTracks`, draws from a torch generator seeded at
 `reset(seed)`); other terrain by the family's own generator on the CPU, world i on its own RNG
 stream seeded seed + i as a single env, uploaded in one copy.
@@ -36,6 +37,10 @@ from acl3d.sim.warp_backend import WarpSimulation
 from acl3d.sim.worlds import MAX_WORLDS
 
 DTYPE = torch.float32  # MuJoCo Warp's
+# Resetting worlds get their first observations on a second, small simulation of N / 16 worlds
+# (at least 64): about 4x the worlds that reset in a step at 4,096 worlds or more; a larger burst
+# (every world at once, the time limit) is done in parts.
+START_SHARE, MIN_START_WORLDS = 16, 64
 
 
 def check_many_worlds(name: str):
@@ -72,6 +77,8 @@ class ManyWorlds:
         curriculum: where tasks come from (`CurriculumSync`); None: every world plays the task
             in `tasks` (the task space's default task until set).
         max_episode_steps: the time limit (2000, as the registered envs).
+        start_worlds: worlds of the start simulation, where resetting worlds get their first
+            observation; None: N / 16, at least 64 (at most N).
     """
 
     def __init__(
@@ -80,8 +87,12 @@ class ManyWorlds:
         family: WorldFamily,
         curriculum: CurriculumSync | None = None,
         max_episode_steps: int = 2000,
+        start_worlds: int | None = None,
     ):
         self.num_envs = validation.integer("num_envs", num_envs, 1, MAX_WORLDS)
+        if start_worlds is None:
+            start_worlds = min(self.num_envs, max(MIN_START_WORLDS, self.num_envs // START_SHARE))
+        validation.integer("start_worlds", start_worlds, 1, self.num_envs)
         self.max_episode_steps = validation.integer(
             "max_episode_steps", max_episode_steps, 1, 10**9
         )
@@ -95,9 +106,13 @@ class ManyWorlds:
         self.sim = WarpSimulation(
             env.model, self.num_envs, env.frame_skip, family.fields, self.device
         )
+        self.starts = WarpSimulation(
+            env.model, start_worlds, env.frame_skip, family.fields, self.device
+        )
         self.rules = family.rules
         n, f = self.num_envs, {"device": self.device, "dtype": self.sim.dtype}
         self.heights = self.rules.sensor.empty_heights(n, **f)
+        self._start_heights = self.rules.sensor.empty_heights(start_worlds, **f)
         self.prev_shaping = torch.zeros(n, **f)
         self.elapsed = torch.zeros(n, dtype=torch.long, device=self.device)
         self.stats = EpisodeStatistics(n, len(self.task_space.names), device=self.device)
@@ -142,27 +157,42 @@ class ManyWorlds:
         return tasks.reshape(len(ids), -1)
 
     def _reset_worlds(self, ids: np.ndarray, tasks: np.ndarray, obs: torch.Tensor):
-        """New episodes on worlds `ids` (host indices) with `tasks`; returns obs with their rows
-        replaced by their first observations."""
-        env, n = self.template, self.num_envs
+        """New episodes on worlds `ids` (host indices) with `tasks`; returns a copy of obs with
+        their rows replaced by their first observations."""
+        env = self.template
         self.tasks[ids] = tasks
         sensed, rows = self.family.terrain(ids, tasks, self._generator, self._rngs)
         push = self.family.push(ids, self._generator, self._rngs)
         index = torch.as_tensor(ids, device=self.device)
         self.heights[index, ..., : sensed.shape[-1]] = sensed.to(self.sim.dtype)
         self.sim.terrain("terrain")[index] = rows.to(self.sim.dtype)
-        mask = torch.zeros(n, dtype=torch.bool, device=self.device)
-        mask[index] = True
-        qpos = torch.as_tensor(self._home_qpos, device=self.device).expand(n, -1)
-        qvel = torch.zeros((n, env.model.nv), device=self.device, dtype=self.sim.dtype)
-        qvel[index, env.arena.bound.root_dof] = (push * self._push_scale).to(self.sim.dtype)
-        self.sim.reset_worlds(mask, qpos, qvel)
-        x, first = self.rules.observe(self.sim, self.heights)
-        shaping = self.rules.potential(self.sim, x, first)
-        self.prev_shaping = torch.where(mask, shaping, self.prev_shaping)
-        self.elapsed.masked_fill_(mask, 0)
+        qpos = torch.as_tensor(self._home_qpos, device=self.device).expand(len(ids), -1)
+        qvel = torch.zeros((len(ids), env.model.nv), device=self.device, dtype=self.sim.dtype)
+        qvel[:, env.arena.bound.root_dof] = (push * self._push_scale).to(self.sim.dtype)
+        self.sim.reset_worlds(index, qpos, qvel)
+        self.elapsed.index_fill_(0, index, 0)
         self.stats.begin(index, torch.as_tensor(tasks, device=self.device))
-        return torch.where(mask[:, None], first, obs)
+        for lo in range(0, len(ids), self.starts.nworld):
+            part = slice(lo, lo + self.starts.nworld)
+            first, shaping = self._first_observations(index[part], qpos[part], qvel[part])
+            obs = obs.index_put((index[part],), first)
+            self.prev_shaping.index_put_((index[part],), shaping)
+        return obs
+
+    def _first_observations(self, index, qpos, qvel) -> tuple[torch.Tensor, torch.Tensor]:
+        """(observations, shaping) of the k <= `starts.nworld` worlds `index` in their reset
+        state, computed on the start worlds: the main simulation needs no `forward` (its next
+        step computes one), so a reset costs physics for k worlds, not N."""
+        k, starts = len(index), self.starts
+        rows = torch.arange(k, device=self.device)
+        starts.terrain("terrain")[:k] = self.sim.terrain("terrain")[index]
+        starts.force_caps()[:k] = self.sim.force_caps()[index]
+        starts.reset_worlds(rows, qpos, qvel)
+        starts.forward()
+        self._start_heights[:k] = self.heights[index]
+        x, first = self.rules.observe(starts, self._start_heights)
+        shaping = self.rules.potential(starts, x, first)
+        return first[:k], shaping[:k]
 
     # ------------------------------------------------------------------ steps
     def step(self, actions: torch.Tensor):
@@ -268,7 +298,8 @@ class ManyWorldTracks(ManyWorlds):
         device="cuda",
         curriculum: CurriculumSync | None = None,
         max_episode_steps: int = 2000,
+        start_worlds: int | None = None,
         **env_kwargs,
     ):
         family = TrackWorlds(torch.device(device), DTYPE, **env_kwargs)
-        super().__init__(num_envs, family, curriculum, max_episode_steps)
+        super().__init__(num_envs, family, curriculum, max_episode_steps, start_worlds)

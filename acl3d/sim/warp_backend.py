@@ -12,7 +12,7 @@ a leading world dimension there:
   was not taken (docs/architecture.md compares the two).
 
 Every array is read and written through zero-copy torch views (`warp.to_torch`). The `nstep`
-substeps of a step and the `forward` after resets are each captured once as a graph and replayed
+substeps of a step and a `forward` are each captured once as a graph and replayed
 (a CUDA graph on a GPU; on Warp's CPU device a recorded launch list, 6.6x faster than launching
 each kernel from Python). On a GPU, Warp's stream and torch's current stream are ordered with
 events, so torch writes (controls, caps, reset states) are seen by the graph and its results by
@@ -144,14 +144,15 @@ class WarpSimulation:
     def terrain(self, hfield: str) -> torch.Tensor:
         return self._terrain[hfield]
 
-    def reset_worlds(self, worlds: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
+    def reset_worlds(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
         v = self._views
-        mask = worlds[:, None]
-        v["qpos"].copy_(torch.where(mask, qpos.to(self.dtype), v["qpos"]))
-        v["qvel"].copy_(torch.where(mask, qvel.to(self.dtype), v["qvel"]))
-        v["qacc_warmstart"].masked_fill_(mask, 0.0)
-        v["ctrl"].masked_fill_(mask, 0.0)
-        v["time"].masked_fill_(worlds, 0.0)
+        v["qpos"].index_copy_(0, ids, qpos.to(self.dtype))
+        v["qvel"].index_copy_(0, ids, qvel.to(self.dtype))
+        for name in ("qacc_warmstart", "ctrl"):
+            v[name].index_fill_(0, ids, 0.0)
+        v["time"].index_fill_(0, ids, 0.0)
+
+    def forward(self) -> None:
         self._run("forward", lambda: self._mjw.forward(self.m, self.d))
 
     def step(self) -> None:

@@ -62,10 +62,14 @@ class Simulation(Protocol):
         """Live (N, nrow, ncol) per-world elevation data (0..1) of a declared terrain heightfield."""
         ...
 
-    def reset_worlds(self, worlds: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
-        """Clear the worlds where the (N,) bool mask `worlds` is set, put them in state
-        (qpos, qvel) (rows of (N, nq) / (N, nv) tensors; other rows ignored) and recompute
-        their derived fields; other worlds are untouched."""
+    def reset_worlds(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
+        """Clear worlds `ids` ((k,) indices on the device) and put them in state (qpos, qvel)
+        ((k, nq), (k, nv)); other worlds are untouched. Their derived fields are recomputed by
+        the next `step` (or `forward`), so a reset costs no physics."""
+        ...
+
+    def forward(self) -> None:
+        """Recompute every world's derived fields from its state (MuJoCo's `mj_forward`)."""
         ...
 
     def step(self) -> None:
