@@ -8,6 +8,8 @@ others untouched. All tests of this module run on one test worker (`xdist_group`
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -191,6 +193,9 @@ def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
     assert main(["train", "--resume", str(parts), "--steps", "512", "--quiet"]) == 0
     episodes = (whole / "episodes.csv").read_text()
     assert len(episodes.splitlines()) > 8
+    seconds = json.loads((whole / "status.json").read_text())["seconds_by_phase"]
+    assert set(seconds) == {"collect", "teacher", "update", "evaluate", "records"}
+    assert all(value > 0 for value in seconds.values())
     assert episodes == (parts / "episodes.csv").read_text()
     evals = [line.split(",")[:6] for line in (whole / "evals.csv").read_text().splitlines()]
     assert evals == [line.split(",")[:6] for line in (parts / "evals.csv").read_text().splitlines()]

@@ -38,6 +38,7 @@ from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
 from acl3d.training.torch_student import rsl_ppo
 from acl3d.training.torch_student.evaluation import ManyWorldEvaluator, WorldEvaluator
+from acl3d.training.torch_student.phase_times import PhaseTimes
 
 EPISODE_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
 EVAL_COLUMNS = ("step", "episodes", "mastered_pct", "mean_return", "std_return", "mean_length",
@@ -49,15 +50,17 @@ class _Curriculum:
     picks the next tasks of the worlds that reset; finished episodes wait in `finished` for the
     episode log."""
 
-    def __init__(self, controller):
+    def __init__(self, controller, times: PhaseTimes):
         self.controller, self.finished, self.episodes_done = controller, [], 0
+        self.times = times
 
     def sync(self, finished, env_ids) -> np.ndarray:
-        if len(finished):
-            self.controller.record_episodes(finished)
-            self.episodes_done += len(finished)
-            self.finished.append(finished)
-        return self.controller.sample_training_tasks(len(env_ids))[0]
+        with self.times.phase("teacher"):
+            if len(finished):
+                self.controller.record_episodes(finished)
+                self.episodes_done += len(finished)
+                self.finished.append(finished)
+            return self.controller.sample_training_tasks(len(env_ids))[0]
 
 
 class TorchRun:
@@ -90,7 +93,8 @@ class TorchRun:
             )
         if self.warp:
             check_many_worlds(config.env)
-        self.curriculum = _Curriculum(self.controller)
+        self.times = PhaseTimes()
+        self.curriculum = _Curriculum(self.controller, self.times)
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
         self.steps: int | None = None  # the steps trained, once provenance.json has its segment
 
@@ -186,9 +190,10 @@ class TorchRun:
         every_eval, every_ckpt = c.effective_eval_every, c.effective_checkpoint_every
         next_eval, next_ckpt = _next(steps, every_eval), _next(steps, every_ckpt)
         last_eval = last_ckpt = -1
+        times = self.times
         while steps < target:
             tick = time.perf_counter()
-            with torch.inference_mode():
+            with times.phase("collect"), torch.inference_mode():
                 for _ in range(self.student.steps_per_env):
                     actions = self.student.act(obs)
                     obs, rewards, terminated, truncated, extras = self.env.step(actions)
@@ -197,21 +202,28 @@ class TorchRun:
                     self.steps = steps
                     self.controller.maybe_sample_periodically(steps)
             collect = time.perf_counter() - tick
-            losses = self.student.update(obs)
+            with times.phase("update"):
+                losses = self.student.update(obs)
             self._log_update(steps, losses, collect, time.perf_counter() - tick)
             if steps >= next_eval:
-                self._evaluate(steps)
+                with times.phase("evaluate"):
+                    self._evaluate(steps)
                 last_eval, next_eval = steps, _next(steps, every_eval)
+            with times.phase("records"):
+                self._log_episodes(steps)
+                if steps >= next_ckpt:
+                    self._checkpoint(steps, obs)
+                    last_ckpt, next_ckpt = steps, _next(steps, every_ckpt)
+        with times.phase("evaluate"):
+            if last_eval != steps:
+                self._evaluate(steps)
+        with times.phase("records"):
             self._log_episodes(steps)
-            if steps >= next_ckpt:
+            if last_ckpt != steps:
                 self._checkpoint(steps, obs)
-                last_ckpt, next_ckpt = steps, _next(steps, every_ckpt)
-        if last_eval != steps:
-            self._evaluate(steps)
-        self._log_episodes(steps)
-        if last_ckpt != steps:
-            self._checkpoint(steps, obs)
-        self._save_policy(self.run.final_model)
+            self._save_policy(self.run.final_model)
+        if c.verbose:
+            print(f"[acl3d] wall time by phase: {times.summary()}", flush=True)
         if self.tb is not None:
             self.tb.close()
         return steps
@@ -351,7 +363,7 @@ def train_run(config: TrainConfig, run: RunDir, resume_from, target: int, overwr
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, previous)
-    run.set_status("finished", steps=steps)
+    run.set_status("finished", steps=steps, seconds_by_phase=torch_run.times.report())
     provenance.close(run.path, "finished", steps)
     return steps
 
