@@ -68,7 +68,7 @@ class RewardNormaliser:
         delta, total = batch_mean - self.mean, self.count + n
         m2 = self.var * self.count + batch_var * n + delta**2 * self.count * n / total
         self.mean, self.var, self.count = self.mean + delta * n / total, m2 / total, total
-        self.returns[dones] = 0.0
+        self.returns.masked_fill_(dones, 0.0)  # a mask, not indexing: no host sync on a GPU
         return (rewards / torch.sqrt(self.var + 1e-8)).clamp(-10.0, 10.0).float()
 
     def state_dict(self) -> dict:
@@ -118,15 +118,14 @@ class RslPPO:
 
     def record(self, rewards, terminated, truncated, final_obs: torch.Tensor) -> None:
         """One step's outcome; an episode cut by the time limit is bootstrapped with the value
-        of its final observation."""
+        of its final observation (the critic runs on every world and the mask picks: asking
+        which worlds were cut would wait for the GPU at every step)."""
         dones = terminated | truncated
         if self.rewards is not None:
             rewards = self.rewards(rewards, dones)
         cut = truncated & ~terminated
-        if bool(cut.any()):
-            values = self.alg.critic(_obs(final_obs[cut])).squeeze(-1)
-            rewards = rewards.clone()
-            rewards[cut] += self.alg.gamma * values
+        values = self.alg.critic(_obs(final_obs)).squeeze(-1)
+        rewards = torch.where(cut, rewards + self.alg.gamma * values, rewards)
         self.alg.process_env_step(None, rewards, dones, {})
 
     def update(self, last_obs: torch.Tensor) -> dict[str, float]:
