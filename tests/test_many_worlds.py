@@ -164,6 +164,16 @@ def test_more_resets_than_start_worlds_are_done_in_parts():
         ManyWorldTracks(3, device="cpu", start_worlds=4)
 
 
+def test_without_autoreset_finished_worlds_play_on_until_reset():
+    env = ManyWorldTracks(2, device="cpu", max_episode_steps=3, autoreset=False)
+    env.reset(seed=8)
+    ends = [env.step(_actions(env, 60 + k))[3] for k in range(4)]
+    assert [bool(t.all()) for t in ends] == [False, False, True, True]
+    assert env.elapsed.tolist() == [4, 4]  # no new episode began
+    env.reset(seed=8)
+    assert env.elapsed.tolist() == [0, 0]
+
+
 def test_a_restored_state_continues_as_the_original(worlds):
     worlds.step(_actions(worlds, 11))
     saved = worlds.get_state()

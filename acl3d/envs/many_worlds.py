@@ -57,14 +57,16 @@ def check_many_worlds(name: str):
     return registration
 
 
-def many_worlds(name: str, num_envs: int, device, curriculum=None, **env_kwargs):
+def many_worlds(name: str, num_envs: int, device, curriculum=None, autoreset=True, **env_kwargs):
     """The many-world simulation of a registered env (see `check_many_worlds`)."""
     registration = check_many_worlds(name)
     kwargs = {**registration.kwargs, **env_kwargs}
     steps = kwargs.pop("max_episode_steps", 2000)
     device = torch.device(device)
     family = FAMILIES[registration.entry_point](device, DTYPE, **kwargs)
-    return ManyWorlds(num_envs, family, curriculum=curriculum, max_episode_steps=steps)
+    return ManyWorlds(
+        num_envs, family, curriculum=curriculum, max_episode_steps=steps, autoreset=autoreset
+    )
 
 
 class ManyWorlds:
@@ -79,6 +81,9 @@ class ManyWorlds:
         max_episode_steps: the time limit (2000, as the registered envs).
         start_worlds: worlds of the start simulation, where resetting worlds get their first
             observation; None: N / 16, at least 64 (at most N).
+        autoreset: a finished world starts its next episode in the same step (True); False:
+            it plays on, its results to be ignored, until `reset` (single-episode passes such
+            as evaluations: a step then never waits for the GPU).
     """
 
     def __init__(
@@ -88,8 +93,10 @@ class ManyWorlds:
         curriculum: CurriculumSync | None = None,
         max_episode_steps: int = 2000,
         start_worlds: int | None = None,
+        autoreset: bool = True,
     ):
         self.num_envs = validation.integer("num_envs", num_envs, 1, MAX_WORLDS)
+        self.autoreset = validation.flag("autoreset", autoreset)
         if start_worlds is None:
             start_worlds = min(self.num_envs, max(MIN_START_WORLDS, self.num_envs // START_SHARE))
         validation.integer("start_worlds", start_worlds, 1, self.num_envs)
@@ -227,11 +234,11 @@ class ManyWorlds:
             "episode_length": self.elapsed.clone(),
         }
         self.stats.step(reward, terminated, truncated, success)
-        done = terminated | truncated
-        ids = done.nonzero()[:, 0].cpu().numpy()  # the step's one host sync
-        if len(ids):
-            tasks = self._next_tasks(self.stats.pop(), ids)
-            obs = self._reset_worlds(ids, tasks, obs)
+        if self.autoreset:
+            ids = (terminated | truncated).nonzero()[:, 0].cpu().numpy()  # the one host sync
+            if len(ids):
+                tasks = self._next_tasks(self.stats.pop(), ids)
+                obs = self._reset_worlds(ids, tasks, obs)
         self.obs = obs
         return obs, reward, terminated, truncated, infos
 
@@ -299,7 +306,8 @@ class ManyWorldTracks(ManyWorlds):
         curriculum: CurriculumSync | None = None,
         max_episode_steps: int = 2000,
         start_worlds: int | None = None,
+        autoreset: bool = True,
         **env_kwargs,
     ):
         family = TrackWorlds(torch.device(device), DTYPE, **env_kwargs)
-        super().__init__(num_envs, family, curriculum, max_episode_steps, start_worlds)
+        super().__init__(num_envs, family, curriculum, max_episode_steps, start_worlds, autoreset)

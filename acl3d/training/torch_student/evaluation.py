@@ -8,6 +8,7 @@ streams, so training continues exactly as without it.
 
 from __future__ import annotations
 
+import itertools
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -18,6 +19,8 @@ from acl3d.envs.batched_vector import BatchedVectorEnv
 from acl3d.envs.curriculum_wrapper import INFO_KEY
 from acl3d.envs.many_worlds import many_worlds
 from acl3d.training.evaluation import EvalResult, own_random_streams
+
+CHECK_EVERY = 32  # steps between the many-world evaluator's host checks
 
 
 class ChunkedEvaluator(ABC):
@@ -91,26 +94,31 @@ class ManyWorldEvaluator(ChunkedEvaluator):
         self.seed = config.eval_seed
         self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
         self.worlds = many_worlds(
-            config.env, self.num_worlds, device, body=config.body, **config.env_kwargs
-        )
+            config.env, self.num_worlds, device, autoreset=False, body=config.body,
+            **config.env_kwargs,
+        )  # fmt: skip
         self.success_return = float(self.worlds.curriculum_profile.success_return)
 
     def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
-        worlds, n = self.worlds, self.num_worlds
+        """Each world's first episode, its results kept on the device as it ends; the host
+        asks whether any world still runs once every `CHECK_EVERY` steps only."""
+        worlds, n, k = self.worlds, self.num_worlds, len(chunk)
         index = np.minimum(chunk[0] + np.arange(n), chunk[-1])  # spare worlds replay the last
         worlds.tasks[:] = self.tasks[index]
         obs = worlds.reset(seed=self.seed + int(chunk[0]))
-        running = torch.arange(n, device=worlds.device) < len(chunk)
-        while bool(running.any()):
+        running = torch.arange(n, device=worlds.device) < k
+        ended_with = None
+        for step in itertools.count(1):
             obs, _, terminated, truncated, infos = worlds.step(policy(obs))
             ended = (terminated | truncated) & running
-            rows = ended.nonzero()[:, 0]
-            if len(rows):
-                k = index[rows.cpu().numpy()]
-                returns[k] = infos["episode_return"][rows].cpu().numpy()
-                lengths[k] = infos["episode_length"][rows].cpu().numpy()
-                successes[k] = infos["success"][rows].cpu().numpy()
-                running &= ~ended
+            now = [infos[key] for key in ("episode_return", "episode_length", "success")]
+            ended_with = now if ended_with is None else ended_with
+            ended_with = [torch.where(ended, a, b) for a, b in zip(now, ended_with)]
+            running &= ~ended
+            if step % CHECK_EVERY == 0 and not bool(running.any()):
+                break
+        ret, length, success = (value[:k].cpu().numpy() for value in ended_with)
+        returns[chunk], lengths[chunk], successes[chunk] = ret, length, success
 
     def close(self) -> None:
         self.worlds.close()
