@@ -111,6 +111,26 @@ def test_background_refit_applies_after_exactly_k_episodes_and_resumes_exactly(n
         np.testing.assert_array_equal(c.sample_tasks(30), d.sample_tasks(30))
 
 
-def test_fit_lag_must_be_below_fit_rate():
+def test_a_fit_lag_beyond_fit_rate_keeps_several_refits_in_flight_and_resumes_exactly(tmp_path):
+    params = {**GMM_FAST, "fit_lag": 95}  # fits at 40, 80, 120, 160 applied at 135, 175, ...
+    a, b = make("alp-gmm", SPACE, seed=3, **params), make("alp-gmm", SPACE, seed=3, **params)
+    drive_batched(a, 11, 13)  # 143 episodes
+    assert a.bk["episodes"] == [135] and len(a._in_flight) == 2
+    for _ in range(125):  # b stops with three refits in flight, saved and restored
+        t = b.sample_tasks(1)
+        b.update_batch(t, [_reward(t[0], SPACE, b.nb_episodes)])
+    assert len(b._in_flight) == 3
+    save_state(tmp_path / "t", b.state_dict())
+    c = make("alp-gmm", SPACE, seed=0, **params)
+    c.load_state_dict(load_state(tmp_path / "t"))
+    for teacher in (b, c):
+        for _ in range(60):
+            t = teacher.sample_tasks(1)
+            teacher.update_batch(t, [_reward(t[0], SPACE, teacher.nb_episodes)])
+    assert b.bk["episodes"] == c.bk["episodes"] == [135, 175]
+    np.testing.assert_array_equal(b.sample_tasks(30), c.sample_tasks(30))
+
+
+def test_fit_lag_is_checked():
     with pytest.raises(ValueError, match="fit_lag"):
-        make("alp-gmm", SPACE, seed=0, fit_rate=40, fit_lag=40)
+        make("alp-gmm", SPACE, seed=0, fit_rate=40, fit_lag=-1)

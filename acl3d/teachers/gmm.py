@@ -5,13 +5,16 @@ columns] (the EM is in `acl3d.teachers.mixture_fit`), sampling a Gaussian in pro
 progress weight. With `fit_lag` K > 0 a refit runs in a worker process (a thread's EM, small
 numpy calls holding the GIL, would slow the step loop as much as fitting inline) and its mixture
 is applied exactly K episodes after the fit point, so the step loop never waits for EM and a run
-stays reproducible bit for bit (the fit is a pure function of its data and seed).
+stays reproducible bit for bit (the fit is a pure function of its data and seed). K may exceed
+`fit_rate`: thousands of worlds finish 150 episodes faster than one EM runs, so several refits
+are then in flight, on several workers, each applied at its own point in fit order.
 """
 
 from __future__ import annotations
 
 import functools
 import multiprocessing
+import os
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
 
@@ -27,14 +30,16 @@ from acl3d.teachers.mixture_fit import (
     sklearn_mixture_class,
 )
 
-_REFITS: ProcessPoolExecutor | None = None  # one worker process for every teacher's refits
+_REFITS: ProcessPoolExecutor | None = None  # the worker processes of every teacher's refits
+MAX_FIT_LAG = 10**6  # episodes
+REFIT_WORKERS = max(1, min(4, (os.cpu_count() or 2) - 1))
 
 
 def _refits() -> ProcessPoolExecutor:
     global _REFITS
     if _REFITS is None:
         context = multiprocessing.get_context("forkserver")
-        _REFITS = ProcessPoolExecutor(max_workers=1, mp_context=context)
+        _REFITS = ProcessPoolExecutor(max_workers=REFIT_WORKERS, mp_context=context)
     return _REFITS
 
 
@@ -130,8 +135,8 @@ class GMMTeacherBase(Teacher):
             fit_rate, nb_bootstrap, random_task_ratio, potential_ks, gmm_fitness_func, nb_em_init
         )
         self.fit_rate = int(fit_rate)
-        self.fit_lag = validation.integer("fit_lag", fit_lag, 0, self.fit_rate - 1)
-        self._refit: tuple[dict[str, Any], Future] | None = None  # (job, its running fit)
+        self.fit_lag = validation.integer("fit_lag", fit_lag, 0, MAX_FIT_LAG)
+        self._in_flight: list[tuple[dict[str, Any], Future]] = []  # (job, its fit), fit order
         self.random_task_ratio = float(random_task_ratio)
         self.gmm_fitness_func = gmm_fitness_func
         self.nb_em_init = int(nb_em_init)
@@ -226,10 +231,9 @@ class GMMTeacherBase(Teacher):
         """After an episode's book-keeping: apply a refit whose point has come, then start
         one if this episode completes a `fit_rate` batch (`fit_data()`: the points to fit)."""
         count = self.nb_episodes + 1
-        if self._refit is not None and count >= self._refit[0]["apply_at"]:
-            job, running = self._refit
-            self._refit = None
-            self._apply(running.result())  # waits only if the thread is not done yet
+        while self._in_flight and count >= self._in_flight[0][0]["apply_at"]:
+            job, running = self._in_flight.pop(0)
+            self._apply(running.result())  # waits only if the worker is not done yet
         if count >= self.nb_bootstrap and count % self.fit_rate == 0:
             self._fit(fit_data())
 
@@ -244,7 +248,7 @@ class GMMTeacherBase(Teacher):
         if self.fit_lag == 0:
             self._apply(self._fit_of(job)())
         else:
-            self._refit = (job, _refits().submit(self._fit_of(job)))
+            self._in_flight.append((job, _refits().submit(self._fit_of(job))))
 
     def _fit_of(self, job: dict[str, Any]):
         """The fit of `job` as a picklable call (settings fixed at construction only)."""
@@ -303,7 +307,7 @@ class GMMTeacherBase(Teacher):
             "gmm": None if self.gmm is None else self.gmm.state(),
             "r_min": None if not np.isfinite(self.r_min) else self.r_min,
             "r_max": None if not np.isfinite(self.r_max) else self.r_max,
-            "refit": None if self._refit is None else self._job_state(self._refit[0]),
+            "refits": [self._job_state(job) for job, _ in self._in_flight],
         }
 
     @staticmethod
@@ -318,11 +322,11 @@ class GMMTeacherBase(Teacher):
         )
         self.r_min = np.inf if extra["r_min"] is None else float(extra["r_min"])
         self.r_max = -np.inf if extra["r_max"] is None else float(extra["r_max"])
-        # a refit in flight is fitted again from its saved inputs (same result); a state saved
-        # by a teacher without fit lag has none
-        job = extra.get("refit")
-        self._refit = None
-        if job is not None:
+        # refits in flight are fitted again from their saved inputs (same results); states of
+        # earlier versions hold at most one, as "refit"
+        jobs = extra.get("refits", [extra["refit"]] if extra.get("refit") else [])
+        self._in_flight = []
+        for job in jobs:
             units = None if job["units"] is None else tuple(np.asarray(u) for u in job["units"])
             job = {
                 **job,
@@ -330,4 +334,4 @@ class GMMTeacherBase(Teacher):
                 "em_seed": int(job["em_seed"]),
                 "apply_at": int(job["apply_at"]),
             }
-            self._refit = (job, _refits().submit(self._fit_of(job)))
+            self._in_flight.append((job, _refits().submit(self._fit_of(job))))
