@@ -1,50 +1,96 @@
 #!/usr/bin/env bash
-# The GPU numbers of docs/benchmarks.md in one run, on a machine with a CUDA GPU and acl3d[gpu,rsl]:
+# The GPU numbers of docs/benchmarks.md, stage by stage, on a machine with a CUDA GPU and
+# acl3d[gpu,rsl] (a lent machine runs the stages over a few calls; each writes under OUT):
 #
-#   scripts/gpu_benchmarks.sh OUT [STEPS] [SEEDS]
+#   scripts/gpu_benchmarks.sh cpu OUT      # the CPU path on this machine's cores 4..: the batched
+#                                          # env (1 and 256 envs), SB3 PPO and rsl-ppo training
+#   scripts/gpu_benchmarks.sh env OUT [ENV] # the many-world simulation at 4,096 and 16,384
+#                                          # worlds (stump-tracks: and a new process's first
+#                                          # step; or terrain3d)
+#   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
+#                                          # one ALP-GMM run alone: steps/s end to end, its phases
+#   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
+#   scripts/gpu_benchmarks.sh learn OUT [STEPS] [SEEDS]
+#                                          # Random and ALP-GMM, SEEDS seeds each, side by side
+#   scripts/gpu_benchmarks.sh summary OUT  # every run's last evaluation and phases
 #
-# 1. the CPU batched env on this machine's cores (all but 4), beside
-# 2. the many-world simulation on the GPU (scripts/bench_gpu.py: raw physics, env steps/s with
-#    rules and resets, a new process's first step; Stump Tracks, then 3D Terrain) on the 4 others;
-# 3. rsl-ppo on Stump Tracks (stump-v1's task space, test set and teacher settings; ALP-GMM's
-#    refits in a worker process, applied 100 episodes after their fit point) for STEPS
-#    env steps (default 20M, TeachMyAgent's budget), ALP-GMM seed 0 alone (its steps/s are the
-#    end-to-end figure), then Random and ALP-GMM on the other seeds side by side.
-# OUT gets the tables, each run's evals.csv and a summary; runs live in OUT/runs.
+# The runs use stump-v2's settings (acl3d/campaign/specs/stump-v2.yaml): Stump Tracks [0, 3] x
+# [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
+# sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-out=${1:?usage: scripts/gpu_benchmarks.sh OUT [STEPS] [SEEDS]}
-steps=${2:-20000000}
-seeds=${3:-2}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|speed|repeat|learn|summary OUT ...}
+out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
 command -v taskset >/dev/null || taskset() { shift 2; "$@"; }  # no pinning where it is missing
-taskset -c 4-$((cores - 1)) python3 scripts/bench_batched.py --steps 3000 --sizes 1 256 \
-  --threads $((cores - 4)) --rounds 1 --max-subproc 0 >"$out/cpu_batched.txt" 2>&1 &
-cpu=$!
-taskset -c 0-3 python3 scripts/bench_gpu.py --device cuda --sizes 4096 16384 --steps 100 \
-  --first-step --json "$out/bench_gpu.json" 2>&1 | grep -v '^Module' | tee "$out/bench_gpu.txt"
-taskset -c 0-3 python3 scripts/bench_gpu.py --device cuda --env terrain3d --sizes 4096 16384 \
-  --steps 100 --json "$out/bench_gpu_terrain3d.json" 2>&1 | grep -v '^Module' \
-  | tee "$out/bench_gpu_terrain3d.txt"
-wait $cpu
 
-train() {  # teacher seed
-  local params=()
-  [ "$1" = alp-gmm ] && params=(--teacher-param fit_rate=150 --teacher-param fit_lag=100)
-  python3 -m acl3d train "${params[@]}" --student rsl-ppo --preset benchmark --device cuda --n-envs 4096 \
-    --env stump-tracks --body classic_bipedal --bounds stump_height=0,3 \
+train() {  # teacher seed steps worlds eval_every fit_lag [extra args...]
+  local teacher=$1 seed=$2 steps=$3 worlds=$4 every=$5 lag=$6 params=()
+  shift 6
+  [ "$teacher" = alp-gmm ] && params=(--teacher-param "fit_lag=$lag")
+  python3 -m acl3d train "${params[@]}" --student rsl-ppo --preset benchmark --device cuda \
+    --n-envs "$worlds" --env stump-tracks --body classic_bipedal --bounds stump_height=0,3 \
     --bounds obstacle_spacing=0,6 --expert-knowledge low --test-set grid \
-    --nb-test-episodes 100 --eval-stochastic --eval-every $((steps / 8)) \
-    --checkpoint-every $((steps / 2)) --teacher "$1" --seed "$2" --steps "$steps" \
-    --no-progress --out "$out/runs/$1-s$2" >"$out/train-$1-s$2.txt" 2>&1
+    --nb-test-episodes 100 --eval-stochastic --eval-every "$every" \
+    --periodical-samples-every 1000000 --checkpoint-every $((steps / 2)) --teacher "$teacher" \
+    --seed "$seed" --steps "$steps" --no-progress "$@"
 }
-train alp-gmm 0
-for seed in $(seq 0 $((seeds - 1))); do
-  for teacher in random alp-gmm; do
-    [ "$teacher-$seed" = alp-gmm-0 ] || train "$teacher" "$seed" &
+
+case $stage in
+cpu)
+  taskset -c 4-$((cores - 1)) python3 scripts/bench_batched.py --steps 3000 --sizes 1 256 \
+    --threads $((cores - 4)) --rounds 1 --max-subproc 0 >"$out/cpu_batched.txt" 2>&1
+  taskset -c 4-$((cores - 1)) python3 scripts/bench_training.py --students ppo \
+    --batched-envs 64 256 --rsl-envs 64 256 --ppo-steps 65536 >"$out/cpu_training.txt" 2>&1
+  ;;
+env)
+  env=${3:-stump-tracks}
+  extra=()
+  [ "$env" = stump-tracks ] && extra=(--first-step)
+  [ "$env" = terrain3d ] && extra=(--body big_quadru)
+  python3 scripts/bench_gpu.py --device cuda --env "$env" --sizes 4096 16384 --steps 100 \
+    "${extra[@]}" --json "$out/bench_gpu_$env.json" 2>&1 | grep -v '^Module' \
+    | tee "$out/bench_gpu_$env.txt"
+  ;;
+speed)
+  steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}
+  train alp-gmm 0 "$steps" "$worlds" $((steps / 8)) "$lag" --out "$out/runs/speed-$worlds" \
+    >"$out/speed-$worlds.txt" 2>&1
+  tail -n 3 "$out/speed-$worlds.txt"
+  ;;
+repeat)  # same seed twice, and the same run stopped at 500k and resumed, side by side
+  for name in a b; do
+    train alp-gmm 5 1000000 4096 500000 100 --out "$out/runs/repeat-$name" \
+      >"$out/repeat-$name.txt" 2>&1 &
   done
-done
-wait
-for run in "$out"/runs/*/; do
-  echo "$(basename "$run"): $(tail -n 1 "$run/evals.csv")"
-done | tee "$out/training.txt"
+  train alp-gmm 5 500000 4096 500000 100 --out "$out/runs/repeat-resumed" \
+    >"$out/repeat-resumed.txt" 2>&1 &&
+    python3 -m acl3d train --resume "$out/runs/repeat-resumed" --steps 1000000 --no-progress \
+      >>"$out/repeat-resumed.txt" 2>&1
+  wait
+  for other in b resumed; do
+    python3 scripts/compare_runs.py "$out/runs/repeat-a" "$out/runs/repeat-$other"
+  done | tee "$out/repeat.txt"
+  ;;
+learn)
+  steps=${3:-20000000} seeds=${4:-2}
+  for seed in $(seq 0 $((seeds - 1))); do
+    for teacher in random alp-gmm; do
+      train "$teacher" "$seed" "$steps" 4096 1000000 100 --out "$out/runs/$teacher-s$seed" \
+        >"$out/train-$teacher-s$seed.txt" 2>&1 &
+    done
+  done
+  wait
+  ;;
+summary)
+  for run in "$out"/runs/*/; do
+    echo "$(basename "$run"): $(tail -n 1 "$run/evals.csv" 2>/dev/null)"
+    python3 -c "import json,sys; s=json.load(open(sys.argv[1])); print('  ', s['status'], \
+s.get('seconds_by_phase'))" "$run/status.json" 2>/dev/null
+  done | tee "$out/summary.txt"
+  ;;
+*)
+  echo "unknown stage $stage: cpu, env, speed, repeat, learn or summary" >&2
+  exit 2
+  ;;
+esac
