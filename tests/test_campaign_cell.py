@@ -16,6 +16,14 @@ def test_only_keeps_one_teacher_and_seed():
     assert [r.name for r in spec.expand()] == ["alp-gmm__s1"]
 
 
+def test_labels_of_one_axis_add_up():
+    spec = narrowed(
+        load_spec("stump-v2"), ["teacher=random", "teacher=alp-gmm", "seed=1", "seed=0"]
+    )
+    names = [r.name for r in spec.expand()]
+    assert sorted(names) == ["alp-gmm__s0", "alp-gmm__s1", "random__s0", "random__s1"]
+
+
 @pytest.mark.parametrize(
     ("rule", "message"),
     [

@@ -55,8 +55,8 @@ def _scaling_options(p: argparse.ArgumentParser) -> None:
         "--only",
         action="append",
         metavar="AXIS=LABEL",
-        help="keep only the runs with this grid label or seed (repeatable), e.g. "
-        "--only teacher=alp-gmm --only seed=1 re-runs one cell",
+        help="keep only the runs with this grid label or seed (repeatable: labels of one "
+        "axis add up), e.g. --only teacher=alp-gmm --only seed=1 re-runs one cell",
     )
 
 
@@ -70,10 +70,12 @@ def _spec(args):
 
 def narrowed(spec, rules: list[str]):
     """The spec restricted to the grid labels and seeds of `rules` ("AXIS=LABEL"; "seed=N"
-    keeps seed N, whether or not the spec lists it): one cell of a campaign."""
+    keeps seed N, whether or not the spec lists it): one cell of a campaign, or several, since
+    the labels of one axis add up (`--only teacher=random --only teacher=alp-gmm`)."""
     import dataclasses
 
     grid, seeds = dict(spec.grid), list(spec.seeds)
+    wanted: dict[str, list[str]] = {}
     for rule in rules:
         axis, sep, label = rule.partition("=")
         if not sep or not axis or not label:
@@ -81,20 +83,25 @@ def narrowed(spec, rules: list[str]):
         if axis == "seed":
             if not label.isdigit():
                 raise ValueError(f"--only seed must be an integer >= 0, got {label!r}")
-            seeds = [int(label)]
-            continue
-        if axis not in grid:
+        elif axis not in grid:
             raise ValueError(f"--only {axis!r}: not an axis of {spec.name}; axes: "
                              f"{', '.join([*grid, 'seed'])}")  # fmt: skip
+        else:
+            values = grid[axis]
+            labels = [str(v) for v in values] if not isinstance(values, dict) else list(values)
+            if label not in labels:
+                raise ValueError(f"--only {axis}={label!r}: not in {spec.name}; {axis} is one "
+                                 f"of {', '.join(labels)}")  # fmt: skip
+        wanted.setdefault(axis, []).append(label)
+    for axis, labels in wanted.items():
+        if axis == "seed":
+            seeds = sorted({int(label) for label in labels})
+            continue
         values = grid[axis]
-        labels = [str(v) for v in values] if not isinstance(values, dict) else list(values)
-        if label not in labels:
-            raise ValueError(f"--only {axis}={label!r}: not in {spec.name}; {axis} is one of "
-                             f"{', '.join(labels)}")  # fmt: skip
         grid[axis] = (
-            {label: values[label]}
+            {k: v for k, v in values.items() if k in labels}
             if isinstance(values, dict)
-            else [v for v in values if str(v) == label]
+            else [v for v in values if str(v) in labels]
         )
     return dataclasses.replace(spec, grid=grid, seeds=seeds)
 
