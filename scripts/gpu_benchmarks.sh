@@ -10,8 +10,9 @@
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
-#   scripts/gpu_benchmarks.sh learn OUT [STEPS] [SEEDS]
-#                                          # Random and ALP-GMM, SEEDS seeds each, side by side
+#   scripts/gpu_benchmarks.sh learn OUT [SEEDS]
+#                                          # stump-v2's Random and ALP-GMM cells, SEEDS seeds
+#                                          # each, side by side (campaign run + export)
 #   scripts/gpu_benchmarks.sh summary OUT  # every run's last evaluation and phases
 #
 # The runs use stump-v2's settings (acl3d/campaign/specs/stump-v2.yaml): Stump Tracks [0, 3] x
@@ -72,18 +73,16 @@ repeat)  # same seed twice, and the same run stopped at 500k and resumed, side b
     python3 scripts/compare_runs.py "$out/runs/repeat-a" "$out/runs/repeat-$other"
   done | tee "$out/repeat.txt"
   ;;
-learn)
-  steps=${3:-20000000} seeds=${4:-2}
-  for seed in $(seq 0 $((seeds - 1))); do
-    for teacher in random alp-gmm; do
-      train "$teacher" "$seed" "$steps" 4096 1000000 100 --out "$out/runs/$teacher-s$seed" \
-        >"$out/train-$teacher-s$seed.txt" 2>&1 &
-    done
-  done
-  wait
+learn)  # stump-v2's Random and ALP-GMM cells, seeds 0..SEEDS-1, side by side, then exported
+  seeds=${3:-2}
+  python3 -m acl3d campaign run stump-v2 --out "$out/stump-v2" --executor local \
+    --max-parallel $((2 * seeds)) --only teacher=random --only teacher=alp-gmm --seeds "$seeds" \
+    >"$out/learn.txt" 2>&1
+  python3 -m acl3d campaign export "$out/stump-v2" --protocol stump-v2 --out "$out/export" \
+    >>"$out/learn.txt" 2>&1
   ;;
 summary)
-  for run in "$out"/runs/*/; do
+  for run in "$out"/runs/*/ "$out"/stump-v2/runs/*/; do
     echo "$(basename "$run"): $(tail -n 1 "$run/evals.csv" 2>/dev/null)"
     python3 -c "import json,sys; s=json.load(open(sys.argv[1])); print('  ', s['status'], \
 s.get('seconds_by_phase'))" "$run/status.json" 2>/dev/null
