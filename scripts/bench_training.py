@@ -17,7 +17,10 @@ shared machines repeat with --repeats and read the best.
 
 `--rsl-envs`: the torch-native rsl-ppo student (its own loop on `CpuTensorVectorEnv`, the same
 teacher feeding the worlds) at these world counts, with its `--preset`-named preset: whole
-rollouts and updates after one warm-up rollout; compared with the best SB3 PPO batched cell.
+rollouts and updates after one warm-up rollout (printed with the shares of the wall time in the
+worlds' steps, the policy's act + record and the updates); compared with the best SB3 PPO cell.
+`--rsl-param K=V` changes the preset (e.g. `hidden_dims=[64,64]`); `--env-only N ...` times the
+tensor worlds alone with random actions, the bound no student on them can pass.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import argparse
 import time
 
 import torch
+import yaml
 from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d.training import students
@@ -87,35 +91,84 @@ def measure(kind, student, n_envs, steps, teacher, preset="fast"):
         env.close()
 
 
-def measure_rsl(n_envs: int, steps: int, teacher: str, preset: str) -> float:
-    """rsl-ppo's training steps/s (rollouts + updates) on `n_envs` CPU tensor worlds."""
+class ControllerSync:
+    """The worlds' curriculum as a torch-native run drives it: the controller learns each
+    step's finished episodes, then draws the next tasks of the worlds that reset."""
+
+    def __init__(self, controller):
+        self.controller = controller
+
+    def sync(self, finished, env_ids):
+        if len(finished):
+            self.controller.record_episodes(finished)
+        return self.controller.sample_training_tasks(len(env_ids))[0]
+
+
+def tensor_worlds(n_envs: int, teacher: str):
+    """`n_envs` CPU tensor worlds of Stump Tracks, `teacher` drawing their tasks."""
     from acl3d.envs.tensor_vector import CpuTensorVectorEnv
     from acl3d.teachers.controller import TeacherController
-    from acl3d.training.torch_student.rsl_ppo import RslPPO
-    from acl3d.training.torch_student.run import _Curriculum
 
     probe = make_env("stump-tracks", "classic_bipedal")
     space, profile = probe.unwrapped.task_space, probe.unwrapped.curriculum_profile
     probe.close()
-    source = _Curriculum(TeacherController(teacher, space, 0, profile=profile))
-    env = CpuTensorVectorEnv("stump-tracks", n_envs, curriculum_sync=source)
-    params = students.hyperparameters("rsl-ppo", preset, n_envs)
+    source = ControllerSync(TeacherController(teacher, space, 0, profile=profile))
+    return CpuTensorVectorEnv("stump-tracks", n_envs, curriculum_sync=source)
+
+
+def measure_env(n_envs: int, steps: int, teacher: str) -> float:
+    """The tensor worlds alone (uniform random actions, no learner): steps/s after 20 steps."""
+    env = tensor_worlds(n_envs, teacher)
+    generator = torch.Generator().manual_seed(0)
+    actions = [torch.rand(n_envs, env.action_size, generator=generator) * 2 - 1
+               for _ in range(20 + max(1, steps // n_envs))]  # fmt: skip
+    try:
+        env.reset(seed=0)
+        for a in actions[:20]:
+            env.step(a)
+        start = time.perf_counter()
+        for a in actions[20:]:
+            env.step(a)
+        return (len(actions) - 20) * n_envs / (time.perf_counter() - start)
+    finally:
+        env.close()
+
+
+def measure_rsl(n_envs: int, steps: int, teacher: str, preset: str, overrides=None):
+    """rsl-ppo's training steps/s (rollouts + updates) on `n_envs` CPU tensor worlds, and the
+    shares of the timed wall time in the worlds' steps, the policy's act + record, and updates."""
+    from acl3d.training.torch_student.rsl_ppo import RslPPO
+
+    env = tensor_worlds(n_envs, teacher)
+    params = students.hyperparameters("rsl-ppo", preset, n_envs, overrides)
     torch.manual_seed(0)
     student = RslPPO(params, env.observation_size, env.action_size, n_envs, "cpu",
                      env.action_low, env.action_high)  # fmt: skip
     obs = env.reset(seed=0)
     rollout = student.steps_per_env * n_envs
     rounds = 1 + max(1, -(-steps // rollout))
+    clock = time.perf_counter
     try:
         for r in range(rounds):  # round 0: warm-up
             if r == 1:
-                start = time.perf_counter()
+                seconds, start = dict.fromkeys(("env", "act+record", "update"), 0.0), clock()
             with torch.inference_mode():
                 for _ in range(student.steps_per_env):
-                    obs, rew, term, trunc, extras = env.step(student.act(obs))
+                    t0 = clock()
+                    actions = student.act(obs)
+                    t1 = clock()
+                    obs, rew, term, trunc, extras = env.step(actions)
+                    t2 = clock()
                     student.record(rew, term, trunc, extras["final_obs"])
+                    if r:
+                        seconds["env"] += t2 - t1
+                        seconds["act+record"] += t1 - t0 + clock() - t2
+            t0 = clock()
             student.update(obs)
-        return (rounds - 1) * rollout / (time.perf_counter() - start)
+            if r:
+                seconds["update"] += clock() - t0
+        total = clock() - start
+        return (rounds - 1) * rollout / total, {k: v / total for k, v in seconds.items()}
     finally:
         env.close()
 
@@ -143,7 +196,12 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--students", nargs="+", default=["ppo", "sac"], choices=students.STUDENTS)
     p.add_argument("--batched-envs", nargs="+", type=int, default=[16], help="batched env sizes")
-    p.add_argument("--old-envs", type=int, default=2, help="SubprocVecEnv workers (old path)")
+    p.add_argument(
+        "--old-envs",
+        type=int,
+        default=2,
+        help="SubprocVecEnv workers (old path; 0: skip it and Walker2d)",
+    )
     p.add_argument("--teacher", default="alp-gmm", help="teacher in the loop (default alp-gmm)")
     p.add_argument(
         "--ppo-steps", type=int, default=8192, help="timed PPO steps (at least 1 rollout)"
@@ -152,6 +210,14 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=1, help="best of N measurements per cell")
     p.add_argument("--preset", default="fast", choices=students.PRESETS, help="student preset")
     p.add_argument("--rsl-envs", nargs="+", type=int, default=[], help="rsl-ppo world counts")
+    p.add_argument(
+        "--rsl-param", action="append", default=[], metavar="K=V",
+        help="rsl-ppo preset override (YAML value, repeatable), e.g. hidden_dims=[64,64]",
+    )  # fmt: skip
+    p.add_argument(
+        "--env-only", nargs="+", type=int, default=[],
+        help="also time the tensor worlds alone (random actions) at these world counts",
+    )  # fmt: skip
     p.add_argument(
         "--update-threads",
         nargs="+",
@@ -169,16 +235,23 @@ def main() -> None:
             print(f"  torch threads {t}: {seconds:.3f} s ({ratio:.2f}x)")
         return
 
-    rows, rsl = [], {}
+    overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.rsl_param)}
+    rows, rsl, env_only = [], {}, {}
     for _ in range(args.repeats):
+        for n in args.env_only:
+            sps = measure_env(n, args.ppo_steps, args.teacher)
+            env_only[n] = max(env_only.get(n, 0.0), sps)
+            print(f"  tensor worlds alone x{n}: {sps:.0f} steps/s", flush=True)
         for n in args.rsl_envs:
-            sps = measure_rsl(n, args.ppo_steps, args.teacher, args.preset)
+            sps, shares = measure_rsl(n, args.ppo_steps, args.teacher, args.preset, overrides)
             rsl[n] = max(rsl.get(n, 0.0), sps)
-            print(f"  rsl-ppo tensor worlds x{n}: {sps:.0f} steps/s", flush=True)
+            split = ", ".join(f"{k} {100 * v:.0f}%" for k, v in shares.items())
+            print(f"  rsl-ppo tensor worlds x{n}: {sps:.0f} steps/s ({split})", flush=True)
     for student in args.students:
         steps = args.ppo_steps if student == "ppo" else args.sac_steps
         cells = [("batched", n) for n in args.batched_envs]
-        cells += [("old", args.old_envs), ("walker2d", args.old_envs)]
+        if args.old_envs:
+            cells += [("old", args.old_envs), ("walker2d", args.old_envs)]
         best = {cell: 0.0 for cell in cells}
         share = {n: 1.0 for n in args.batched_envs}
         for _ in range(args.repeats):
@@ -204,10 +277,11 @@ def main() -> None:
     for student, best, share in rows:
         for n in args.batched_envs:
             b = best[("batched", n)]
-            print(
-                f"| {student} | {n} | {b:.0f} | {best[old]:.0f} | {best[walker]:.0f} "
-                f"| {b / best[old]:.2f} | {b / best[walker]:.2f} | {100 * share[n]:.2f}% |"
+            o, w = best.get(old), best.get(walker)
+            others = (
+                f"{o:.0f} | {w:.0f} | {b / o:.2f} | {b / w:.2f}" if o and w else "- | - | - | -"
             )
+            print(f"| {student} | {n} | {b:.0f} | {others} | {100 * share[n]:.2f}% |")
     if rsl:
         sb3 = (
             max(
@@ -220,12 +294,18 @@ def main() -> None:
             else None
         )
         print()
-        print(f"rsl-ppo ('{args.preset}' preset) training steps/s on CPU tensor worlds")
+        changed = "".join(f", {k}={v}" for k, v in overrides.items())
+        print(f"rsl-ppo ('{args.preset}' preset{changed}) training steps/s on CPU tensor worlds")
         print("| worlds | rsl-ppo | vs best SB3 PPO batched |")
         print("|---|---|---|")
         for n, sps in rsl.items():
             ratio = f"{sps / sb3[0]:.2f}x (SB3 at {sb3[1]} envs)" if sb3 else "-"
             print(f"| {n} | {sps:.0f} | {ratio} |")
+    if env_only:
+        print()
+        print("tensor worlds alone (uniform random actions, no learner), steps/s")
+        for n, sps in env_only.items():
+            print(f"| {n} | {sps:.0f} |")
 
 
 if __name__ == "__main__":
