@@ -233,9 +233,10 @@ def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
     for _ in range(5):
         *_, truncated, infos = taught.step(np.zeros((2, 4), np.float32))
     assert bool(truncated.all()) and teacher.nb_episodes == 2  # the teacher saw both episodes
-    with pytest.raises(ValueError, match="env='acl3d/Parkour-v0' on the many-world"):
+    with pytest.raises(ValueError, match="movable_creepers=True on the many-world"):
         gym.make_vec(
-            "acl3d/Parkour-v0", num_envs=2, vectorization_mode="vector_entry_point", device="cpu"
-        )
+            "acl3d/Parkour-v0", num_envs=2, vectorization_mode="vector_entry_point",
+            device="cpu", movable_creepers=True,
+        )  # fmt: skip
     with pytest.raises(ValueError, match="actions: non-finite"):
         envs.step(np.full((2, 4), np.nan, np.float32))

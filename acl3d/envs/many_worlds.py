@@ -45,14 +45,14 @@ START_SHARE, MIN_START_WORLDS = 16, 64
 
 def check_many_worlds(name: str):
     """The registration of a registered env (an id or short name) the many-world simulation
-    runs: Stump Tracks, Hexagon Tracks and 3D Terrain; ValueError naming the env otherwise."""
+    runs: Stump Tracks, Hexagon Tracks, Parkour (static creepers) and 3D Terrain; ValueError
+    naming the env otherwise."""
     gym_id = env_id(name)
     registration = next(r for r in REGISTRY.values() if r.id == gym_id)
     if registration.entry_point not in FAMILIES:
         valid = [r.id for r in REGISTRY.values() if r.entry_point in FAMILIES]
         raise ValueError(
-            f"env={name!r} on the many-world simulation (vec_env warp); valid: "
-            f"{', '.join(valid)} (Parkour runs on the CPU batched env)"
+            f"env={name!r} on the many-world simulation (vec_env warp); valid: {', '.join(valid)}"
         )
     return registration
 
@@ -122,7 +122,7 @@ class ManyWorlds:
         self._start_heights = self.rules.sensor.empty_heights(start_worlds, **f)
         self.prev_shaping = torch.zeros(n, **f)
         self.elapsed = torch.zeros(n, dtype=torch.long, device=self.device)
-        self.stats = EpisodeStatistics(n, len(self.task_space.names), device=self.device)
+        self.stats = EpisodeStatistics(n, self.task_space.dim, device=self.device)
         self.tasks = np.tile(self.task_space.to_vector({}), (n, 1))
         self._generator = torch.Generator(device=self.device)
         self._rngs: list = []  # per-world streams of a CPU terrain generator
@@ -212,7 +212,7 @@ class ManyWorlds:
                 f"got {tuple(actions.shape)}"
             )
         a = actions.to(self.device, self.sim.dtype)
-        self.rules.servo(a, self.sim)
+        self.rules.servo(a, self.sim, self.heights)
         self.sim.step()
         obs, reward, terminated, shaping, crossed = self.rules.outcome(
             self.sim, a, self.heights, self.prev_shaping

@@ -123,8 +123,9 @@ class TensorTrackRules:
         return TensorHeightLineLidar(rules.lidar, self.device, self.dtype)
 
     # ------------------------------------------------------------------ actions
-    def servo(self, actions: torch.Tensor, sim: Simulation) -> None:
-        """Velocity servos towards speed * sign(a), force capped at torque * |a| per world."""
+    def servo(self, actions: torch.Tensor, sim: Simulation, heights: torch.Tensor) -> None:
+        """Velocity servos towards speed * sign(a), force capped at torque * |a| per world;
+        `heights`, the worlds' terrain rows, serve rules with per-world state (Parkour's)."""
         motors = actions[:, : self.nb_motors]
         cap = motors.abs().clamp_(max=1.0) * self.body.torque
         caps = sim.force_caps()

@@ -11,10 +11,14 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
+import mujoco
 import numpy as np
 import torch
 
 from acl3d.envs.arena import INIT_PUSH
+from acl3d.envs.parkour_arena import CEILING_RANGE, GROUND_RANGE
+from acl3d.envs.parkour_env import ParkourEnv
+from acl3d.envs.tensor_parkour_rules import TensorParkourRules
 from acl3d.envs.tensor_terrain import TensorStumpTracks
 from acl3d.envs.tensor_terrain3d_rules import TensorTerrain3DRules
 from acl3d.envs.tensor_track_rules import TensorTrackRules
@@ -113,8 +117,66 @@ class Terrain3DWorlds(WorldFamily):
         return field, ((field - arena._offset) * arena._inv_range).clamp(0.0, 1.0)
 
 
+class ParkourWorlds(WorldFamily):
+    """Parkour: ground and ceiling heightfields, water level and creepers per world, generated on
+    the CPU (the CPPN) and written into each world's record (`TensorParkourRules`).
+
+    Climbers hang from the start-pad ceiling: as every world places its body at the same
+    height, each climber's world is moved down by the lift the single env gives its body (a
+    translation in z, which changes neither the physics nor the observation). Creepers must be
+    static (`movable_creepers=False`, the benchmark's): swinging ones would need per-world
+    bodies and weld targets.
+    """
+
+    def __init__(self, device: torch.device, dtype: torch.dtype, **env_kwargs):
+        super().__init__(device)
+        if env_kwargs.get("movable_creepers"):
+            raise ValueError(
+                "movable_creepers=True on the many-world simulation; valid: False (static "
+                "creepers; swinging ones run on the CPU batched env)"
+            )
+        self.template = env = ParkourEnv(**env_kwargs)
+        self.rules = TensorParkourRules(env.rules, device, dtype)
+        climbing = env.arena.climbing
+        self.fields = WorldFields(
+            ("terrain", "ceiling"), ("terrain", "ceiling"), True, climbing is not None
+        )
+        self._hand_top = 0.0
+        if climbing is not None:  # the highest hand's top with the body placed at home
+            data = mujoco.MjData(env.model)
+            env.arena.bound.place(data, env.arena.start_x, env.body.spawn_height)
+            mujoco.mj_kinematics(env.model, data)
+            self._hand_top = float((data.geom_xpos[climbing.geom_ids, 2] + climbing.radius).max())
+
+    def push(self, ids, generator, rngs) -> torch.Tensor:
+        if self.template.body.initial_push:
+            return super().push(ids, generator, rngs)
+        return torch.zeros(len(ids), device=self.device, dtype=F64)  # the fish: none drawn
+
+    def terrain(self, ids, tasks, generator, rngs):
+        env = self.template
+        arena, x = env.arena, env.arena.grid.x
+        records = []
+        for i, task in zip(ids, tasks):
+            task = env.task_space.to_dict(task)
+            env.composition.check_buildable(task)
+            t = arena.generator.generate(task, rngs[i])
+            shift = self._hand_top - t.ceiling[0] if arena.climbing else 0.0
+            ground = np.clip(np.interp(x, t.x, t.ground + shift), *GROUND_RANGE)
+            ceiling = np.clip(np.interp(x, t.x, t.ceiling + shift), *CEILING_RANGE)
+            creepers = t.creepers + np.array([0.0, 0.0, shift, shift])
+            records.append(
+                self.rules.record.terrain_row(ground, ceiling, t.water_z + shift, creepers)
+            )
+        records = torch.as_tensor(np.stack(records), device=self.device, dtype=F64)
+        lo, hi = GROUND_RANGE
+        ground = (self.rules.record(records, "ground") - lo) / (hi - lo)
+        return records, ground[:, None, :].expand(-1, 2, -1)
+
+
 # the family of each registered single env (its entry point)
 FAMILIES: dict[str, type[WorldFamily]] = {
     "acl3d.envs.track_env:TrackEnv": TrackWorlds,
     "acl3d.envs.terrain3d_env:Terrain3DEnv": Terrain3DWorlds,
+    "acl3d.envs.parkour_env:ParkourEnv": ParkourWorlds,
 }

@@ -4,6 +4,8 @@ The model goes to the device once (`mujoco_warp.put_model`); the fields `WorldFi
 a leading world dimension there:
 
 * force caps: `actuator_forcerange` batched (N, nu, 2), written by the rules before each step;
+* weld anchors: `eq_data` batched (N, neq, 12), written by the rules (Parkour's grasps; which
+  welds are on, `eq_active`, and the applied forces, `xfrc_applied`, are Data: per world anyway);
 * terrain: each declared heightfield asset is copied once per world at the end of
   `hfield_data` (same rows, columns and size: only the address differs), and the batched
   `geom_dataid` (N, ngeom) routes world i's terrain geom to its own copy. This is the route MuJoCo
@@ -31,6 +33,11 @@ from acl3d.extras import optional_dependency
 from acl3d.sim.worlds import MAX_WORLDS, WorldFields
 
 _FIELDS = ("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "sensordata", "qacc_warmstart", "time")
+# what forces and constraints computed on torch read (Parkour's water and grasps) and write
+_FORCE_FIELDS = (
+    *("geom_xpos", "geom_xmat", "xipos", "subtree_com", "xaxis", "xanchor", "qfrc_actuator"),
+    *("xfrc_applied", "eq_active"),
+)
 
 
 def import_warp():
@@ -78,6 +85,8 @@ class WarpSimulation:
             batch["actuator_forcerange"] = nworld
         if fields.terrain_hfields:
             batch["geom_dataid"] = nworld
+        if fields.weld_anchors:
+            batch["eq_data"] = nworld
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
         with wp.ScopedDevice(self._wp_device):
@@ -88,8 +97,10 @@ class WarpSimulation:
             self.m.opt.warn_overflow &= ~int(mjw.OverflowType.HFIELD)
             self.d = mjw.put_data(model, data, nworld=nworld)
             self._terrain = self._route_terrain(model, fields)
-        self._views = {name: wp.to_torch(getattr(self.d, name)) for name in _FIELDS}
+        self._views = {name: wp.to_torch(getattr(self.d, name)) for name in _FIELDS + _FORCE_FIELDS}
         self._caps = wp.to_torch(self.m.actuator_forcerange) if fields.force_caps else None
+        self._anchors = wp.to_torch(self.m.eq_data) if fields.weld_anchors else None
+        self._eq_active0 = torch.as_tensor(model.eq_active0.astype(bool), device=self.device)
         self._graphs: dict[str, object] = {}
 
     # ------------------------------------------------------------------ per-world terrain
@@ -133,8 +144,15 @@ class WarpSimulation:
     # ------------------------------------------------------------------ the Simulation protocol
     def field(self, name: str) -> torch.Tensor:
         """Live (N, ...) view: qpos, qvel, ctrl, xpos (N, nbody, 3), xmat (N, nbody, 3, 3),
-        cvel (N, nbody, 6), sensordata, qacc_warmstart, time (N,)."""
+        cvel (N, nbody, 6), sensordata, qacc_warmstart, time (N,); geom_xpos, geom_xmat, xipos,
+        subtree_com, xaxis, xanchor, qfrc_actuator, xfrc_applied (N, nbody, 6), eq_active
+        (N, neq) bool."""
         return self._views[name]
+
+    def weld_anchors(self) -> torch.Tensor:
+        if self._anchors is None:
+            raise ValueError("weld anchors are not per-world fields of this simulation")
+        return self._anchors
 
     def force_caps(self) -> torch.Tensor:
         if self._caps is None:
@@ -148,9 +166,10 @@ class WarpSimulation:
         v = self._views
         v["qpos"].index_copy_(0, ids, qpos.to(self.dtype))
         v["qvel"].index_copy_(0, ids, qvel.to(self.dtype))
-        for name in ("qacc_warmstart", "ctrl"):
+        for name in ("qacc_warmstart", "ctrl", "xfrc_applied"):
             v[name].index_fill_(0, ids, 0.0)
         v["time"].index_fill_(0, ids, 0.0)
+        v["eq_active"][ids] = self._eq_active0
 
     def forward(self) -> None:
         self._run("forward", lambda: self._mjw.forward(self.m, self.d))

@@ -24,11 +24,15 @@ class WorldFields:
         the batched `geom_dataid`; `terrain_geoms` are the geoms that use them, in order.
     force_caps: every world caps its actuators' forces on its own (`actuator_forcerange`: the
         velocity servos' torque cap is |a| * torque, written each step).
+    weld_anchors: every world places its weld equalities' anchors on its own (`eq_data`: where
+        a climber's hand grabbed). Which welds are on (`eq_active`) and the applied forces
+        (`xfrc_applied`: Parkour's water) are per world in any case: they are state, not model.
     """
 
     terrain_hfields: tuple[str, ...] = ()
     terrain_geoms: tuple[str, ...] = ()
     force_caps: bool = False
+    weld_anchors: bool = False
 
     def __post_init__(self):
         if len(self.terrain_hfields) != len(self.terrain_geoms):
@@ -51,7 +55,14 @@ class Simulation(Protocol):
     dtype: torch.dtype
 
     def field(self, name: str) -> torch.Tensor:
-        """Live (N, ...) tensor of a Data field: qpos, qvel, ctrl, xpos, xmat, cvel, sensordata."""
+        """Live (N, ...) tensor of a Data field: qpos, qvel, ctrl, xpos, xmat, cvel, sensordata;
+        for forces and constraints also geom_xpos, geom_xmat, xipos, subtree_com, xaxis,
+        xanchor, qfrc_actuator, and the writable xfrc_applied and eq_active."""
+        ...
+
+    def weld_anchors(self) -> torch.Tensor:
+        """Live (N, neq, 12) per-world equality data, MuJoCo's 11 numbers padded to 12 (declared
+        with `weld_anchors`)."""
         ...
 
     def force_caps(self) -> torch.Tensor:
@@ -64,7 +75,8 @@ class Simulation(Protocol):
 
     def reset_worlds(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
         """Clear worlds `ids` ((k,) indices on the device) and put them in state (qpos, qvel)
-        ((k, nq), (k, nv)); other worlds are untouched. Their derived fields are recomputed by
+        ((k, nq), (k, nv)), with no applied forces and their equalities as compiled; other worlds
+        are untouched. Their derived fields are recomputed by
         the next `step` (or `forward`), so a reset costs no physics."""
         ...
 

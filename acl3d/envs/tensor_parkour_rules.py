@@ -1,0 +1,413 @@
+"""Parkour's rules on torch tensors: water, survival, grasps and the typed lidar of N worlds.
+
+The arithmetic of `ParkourRules` (survival counters, dead bodies playing zeros, critical contacts
+against anything but the ceiling), `ParkourLidar` (rays on the ground and ceiling lines, the
+creeper boxes and the water plane, with surface flags), `Water.apply` (buoyancy, drag, lift and
+swimming thrust per geom's sagittal rectangle) and `Climbing` (touch, grab, release), for all
+worlds at once with no per-world Python and no host round trip. Constants come from the compiled
+numpy rules; tests/test_many_worlds_parkour.py checks both agree on the same physics.
+
+Each world's episode lives in one float row, its *record* (`ParkourRecord`: ground and ceiling
+lines, water level, creeper boxes, survival counters, grasp flags and anchors, the water forces
+for the next step), which `ManyWorlds` keeps where the tracks keep their height lines: it is
+written at resets, copied to the start worlds and saved in checkpoints. The simulation's
+per-world Parkour fields (the ceiling heightfield, `eq_active`, the weld anchors and
+`xfrc_applied`) are written from it before every step, so the record is their one source.
+Creepers are static boxes (their geoms never collide): their poses are read from the record.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from acl3d.envs.climbing import CEILING_MARGIN, TOUCH_MARGIN
+from acl3d.envs.parkour_arena import CEILING_RANGE, CREEPER_HALF_DEPTH
+from acl3d.envs.parkour_rules import CREEPER_FLAG, WATER_FLAG, ParkourLidar, ParkourRules
+from acl3d.envs.tensor_track_rules import TensorTrackRules, _index, torque_use
+from acl3d.envs.track_rules import FAIL_REWARD
+from acl3d.envs.water import DRAG_MOD, LIFT_MOD, MAX_DRAG, MAX_LIFT, PUSH_MOD, Water
+from acl3d.sim.worlds import Simulation
+
+_BOX_MIN_DIRECTION = 1e-12  # as ParkourLidar: a ray parallel to a box face
+
+
+class ParkourRecord:
+    """Column layout of a world's record (see the module docstring)."""
+
+    def __init__(self, ncol: int, pool: int, hands: int, bodies: int):
+        widths = {
+            "ground": ncol, "ceiling": ncol, "water": 1,
+            "creepers": 4 * pool,  # centre x, centre z, half width, half height (0: unused)
+            "survival": 3,  # steps under water, steps out of water, dead
+            "ready": hands, "holding": hands, "touching": hands, "anchors": 3 * hands,
+            "forces": 3 * bodies,  # water forces for the next step: fx, fz, torque y per body
+        }  # fmt: skip
+        self.slices, start = {}, 0
+        for name, width in widths.items():
+            self.slices[name] = slice(start, start + width)
+            start += width
+        self.width = start
+
+    def terrain_row(self, ground, ceiling, water_z: float, creepers) -> np.ndarray:
+        """A new episode's record: lines on the grid's columns, creepers (k, 4) as the
+        generator gives them (x left, x right, z top, z bottom), counters and grasps cleared."""
+        row = np.zeros(self.width)
+        row[self.slices["ground"]], row[self.slices["ceiling"]] = ground, ceiling
+        row[self.slices["water"]] = water_z
+        boxes = row[self.slices["creepers"]].reshape(-1, 4)[: len(creepers)]
+        boxes[:, 0] = (creepers[:, 0] + creepers[:, 1]) / 2
+        boxes[:, 1] = (creepers[:, 2] + creepers[:, 3]) / 2
+        boxes[:, 2] = (creepers[:, 1] - creepers[:, 0]) / 2
+        boxes[:, 3] = (creepers[:, 2] - creepers[:, 3]) / 2
+        return row
+
+    def __call__(self, record: torch.Tensor, name: str) -> torch.Tensor:
+        """The (N, width) view of one part of (N, record width) records."""
+        return record[:, self.slices[name]]
+
+    def creepers(self, record: torch.Tensor):
+        """(centre x, centre z, half width, half height, used) of each creeper box (N, pool)."""
+        c = self(record, "creepers").unflatten(1, (-1, 4))
+        return c[..., 0], c[..., 1], c[..., 2], c[..., 3], c[..., 2] > 0.0
+
+
+class TensorParkourLidar:
+    """`ParkourLidar` on tensors: reads (N, 2 rays): fractions then surface flags."""
+
+    def __init__(self, lidar: ParkourLidar, record: ParkourRecord, device, dtype):
+        f = {"device": device, "dtype": dtype}
+        self.record, self.rays, self.range = record, lidar.nb_rays, lidar.range
+        self.nb_rays = 2 * lidar.nb_rays
+        grid = lidar._grid
+        self.x = torch.as_tensor(grid.x).to(**f)
+        self.x_min, self.cell, self.ncol = grid.x_min, grid.cell, grid.ncol
+        self.back, self.ahead = lidar._reach_back, lidar._reach_ahead
+        self.window = torch.as_tensor(lidar._window, device=device)
+        d = torch.as_tensor(lidar.directions).to(**f)
+        self.dx, self.dz = d[:, 0], d[:, 2]
+        self.box_d = torch.where(d.abs() < _BOX_MIN_DIRECTION, _BOX_MIN_DIRECTION, d)
+        self.inv_down = torch.as_tensor(lidar._inv_down).to(**f)
+
+    def empty_heights(self, n: int, device, dtype) -> torch.Tensor:
+        return torch.zeros((n, self.record.width), device=device, dtype=dtype)
+
+    def read(self, record: torch.Tensor, origins: torch.Tensor, rotations=None) -> torch.Tensor:
+        x0, z0 = origins[:, 0], origins[:, 2]
+        best = self._surface_hits(record, x0, z0).clamp(max=self.range)
+        flags = torch.zeros_like(best)
+        creeper = self._creeper_hits(record, origins)
+        on_creeper = creeper < best
+        best = torch.where(on_creeper, creeper, best)
+        flags = flags.masked_fill(on_creeper, CREEPER_FLAG)
+        height = z0 - self.record(record, "water")[:, 0]
+        above = (height > 0.0)[:, None]  # rays from under water do not see its surface
+        water = torch.where(above, height[:, None] * self.inv_down, torch.inf)
+        on_water = water < best
+        best = torch.where(on_water, water, best)
+        flags = flags.masked_fill(on_water, WATER_FLAG)
+        miss = best >= self.range
+        fractions = torch.where(miss, 1.0, best / self.range)
+        return torch.cat((fractions, flags.masked_fill(miss, 0.0)), dim=1)
+
+    def _surface_hits(self, record, x0, z0) -> torch.Tensor:
+        """(N, rays) distance to the first crossing of the ground or ceiling line in reach."""
+        i0 = ((x0 + self.back - self.x_min) / self.cell).long().clamp(min=0)
+        i1 = (((x0 + self.ahead - self.x_min) / self.cell).long() + 1).clamp(max=self.ncol - 1)
+        cols = i0[:, None] + self.window
+        inside = cols <= i1[:, None]
+        cols = cols.clamp(max=self.ncol - 1)
+        xs = self.x[cols]
+        hits = torch.full((len(x0), self.rays), torch.inf, device=x0.device, dtype=x0.dtype)
+        for name, sign in (("ground", 1.0), ("ceiling", -1.0)):
+            zs = self.record(record, name).gather(1, cols)
+            nearest = torch.where(inside, sign * zs, -torch.inf).amax(dim=1)
+            near = nearest >= sign * z0 - self.range
+            found = self._polyline_hits(xs, zs, x0, z0, inside[:, 1:])
+            hits = torch.minimum(hits, torch.where(near[:, None], found, torch.inf))
+        return hits
+
+    def _polyline_hits(self, xs, zs, x0, z0, segments) -> torch.Tensor:
+        ex, ez = self.cell, (zs[:, 1:] - zs[:, :-1])[:, None, :]
+        rx = (xs[:, :-1] - x0[:, None])[:, None, :]
+        rz = (zs[:, :-1] - z0[:, None])[:, None, :]
+        dx, dz = self.dx[None, :, None], self.dz[None, :, None]
+        denom = dx * ez - dz * ex
+        safe = torch.where(denom == 0.0, 1.0, denom)
+        t = (rx * ez - rz * ex) / safe
+        u = (rx * dz - rz * dx) / safe
+        valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0) & segments[:, None, :]
+        return torch.where(valid, t, torch.inf).amin(dim=2)
+
+    def _creeper_hits(self, record, origins) -> torch.Tensor:
+        """(N, rays) distance to the nearest creeper box entered from outside (slab test)."""
+        cx, cz, hx, hz, used = self.record.creepers(record)
+        offsets = (
+            origins[:, 0:1] - cx,
+            origins[:, 1:2] - torch.zeros_like(cx),
+            origins[:, 2:3] - cz,
+        )
+        half = (hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz)
+        t_in = t_out = None
+        for k in range(3):
+            d = self.box_d[:, k][None, :, None]  # (1, rays, 1)
+            t1 = (-half[k] - offsets[k])[:, None, :] / d
+            t2 = (half[k] - offsets[k])[:, None, :] / d
+            lo, hi = torch.minimum(t1, t2), torch.maximum(t1, t2)
+            t_in = lo if t_in is None else torch.maximum(t_in, lo)
+            t_out = hi if t_out is None else torch.minimum(t_out, hi)
+        hit = (t_in <= t_out) & (t_in > 0.0) & used[:, None, :]
+        return torch.where(hit, t_in, torch.inf).amin(dim=2)
+
+
+class TensorWater:
+    """`Water.apply` for N worlds: (N, bodies, 3) forces (fx, fz, torque y) on `body_ids`."""
+
+    def __init__(self, water: Water, model, device, dtype):
+        f = {"device": device, "dtype": dtype}
+        rows = water._rows
+        self.density, self.clip, self.gravity = water.density, water.push_clip, water._gravity
+        self.geoms = _index(water.geoms, device)
+        self.bodies = _index(water.bodies, device)
+        self.roots = _index(water._tree_roots, device)
+        self.body_ids = _index(water.body_ids, device)
+        self.slot = _index([list(water.body_ids).index(b) for b in water.bodies], device)
+        self.centre = torch.tensor([r[0] for r in rows], **f)  # (G, 3)
+        self.k1, self.k2 = _index(water._k1, device), _index(water._k2, device)
+        self.e1, self.e2 = torch.tensor(water._e1, **f), torch.tensor(water._e2, **f)
+        self.area = torch.tensor(water.area, **f)
+        pushed = [i for i, r in enumerate(rows) if r[7] is not None]
+        table = [rows[i][7] for i in pushed]  # (joint, dof, qpos, unlimited, low, high, inertia)
+        self.pushed = _index(pushed, device)
+        self.joint, self.dof, self.qadr = (_index([t[k] for t in table], device) for k in range(3))
+        self.free = torch.tensor([t[3] for t in table], dtype=torch.bool, device=device)
+        self.low, self.high, self.inertia = (
+            torch.tensor([t[k] for t in table], **f) for k in (4, 5, 6)
+        )
+
+    def forces(self, sim: Simulation, level: torch.Tensor) -> torch.Tensor:
+        r = sim.field("geom_xmat")[:, self.geoms].flatten(2)  # (N, G, 9)
+        p = sim.field("geom_xpos")[:, self.geoms] + torch.einsum(
+            "ngij,gj->ngi", r.unflatten(2, (3, 3)), self.centre
+        )
+        px, py, pz = p.unbind(2)
+        ux, uz = r.gather(2, self._k(self.k1, r, 0)), r.gather(2, self._k(self.k1, r, 6))
+        wx, wz = r.gather(2, self._k(self.k2, r, 0)), r.gather(2, self._k(self.k2, r, 6))
+        ux, uz, wx, wz = ux[..., 0], uz[..., 0], wx[..., 0], wz[..., 0]
+        half_z = uz.abs() * self.e1 + wz.abs() * self.e2
+        bottom = pz - half_z
+        level = level[:, None]
+        wet = bottom < level
+        frac = ((level - bottom) / (2 * half_z + 1e-9)).clamp(max=1.0)
+        w_x, w_y, w_z, v_x, _, v_z = sim.field("cvel")[:, self.bodies].unbind(2)
+        cx, cy, cz = sim.field("subtree_com")[:, self.roots].unbind(2)
+        ax, _, az = sim.field("xipos")[:, self.bodies].unbind(2)
+        buoyancy = self.density * self.area * frac * self.gravity
+        ry = py - cy
+        # the four edges of each rectangle: outward normal, half extent to it, its length
+        nx = torch.stack((ux, -ux, wx, -wx), dim=2)
+        nz = torch.stack((uz, -uz, wz, -wz), dim=2)
+        offset = torch.stack((self.e1, self.e1, self.e2, self.e2), dim=1)  # (G, 4)
+        length = torch.stack((self.e2, self.e2, self.e1, self.e1), dim=1) * 2
+        mx, mz = px[..., None] + offset * nx, pz[..., None] + offset * nz
+        vx = v_x[..., None] + w_y[..., None] * (mz - cz[..., None]) - (w_z * ry)[..., None]
+        vz = v_z[..., None] + (w_x * ry)[..., None] - w_y[..., None] * (mx - cx[..., None])
+        speed2 = vx * vx + vz * vz
+        inv = speed2.clamp(min=1e-18).rsqrt()
+        n_v = (nx * vx + nz * vz) * inv
+        leading = (speed2 >= 1e-18) & (n_v > 0.0)
+        t_v = (nx * vz - nz * vx) * inv
+        base = length * self.density * speed2 * frac[..., None]
+        drag = (DRAG_MOD * n_v * base).clamp(max=MAX_DRAG)
+        lift = (LIFT_MOD * n_v * t_v * base).clamp(max=MAX_LIFT)
+        fx = torch.where(leading, (-drag * vx - lift * vz) * inv, 0.0)
+        fz = torch.where(leading, (-drag * vz + lift * vx) * inv, 0.0)
+        torque = (mz - az[..., None]) * fx - (mx - ax[..., None]) * fz
+        out = torch.stack(
+            (fx.sum(2), buoyancy + fz.sum(2), torque.sum(2) - (px - ax) * buoyancy), 2
+        )
+        if len(self.pushed):
+            out = out.index_add(1, self.pushed, self._push(sim, nx, nz, length, frac, ax, az))
+        out = out * wet[..., None]
+        per_body = torch.zeros((len(r), len(self.body_ids), 3), device=r.device, dtype=r.dtype)
+        return per_body.index_add_(1, self.slot, out)
+
+    @staticmethod
+    def _k(k, r, row):
+        return (k + row)[None, :, None].expand(len(r), -1, 1)
+
+    def _push(self, sim, nx, nz, length, frac, ax, az) -> torch.Tensor:
+        """(N, pushed geoms, 3) swimming thrust at the motors' joint anchors."""
+        g = self.pushed
+        q = sim.field("qpos")[:, self.qadr]
+        active = self.free | ((self.low < q) & (q < self.high))
+        sign = -sim.field("xaxis")[:, self.joint, 1]
+        tau = sim.field("qfrc_actuator")[:, self.dof] * sign
+        omega = sim.field("qvel")[:, self.dof] * sign
+        anchor = sim.field("xanchor")[:, self.joint]
+        ax, az = ax[:, g], az[:, g]
+        f_x, f_z = -tau * (az - anchor[..., 2]), tau * (ax - anchor[..., 0])
+        gain = PUSH_MOD * self.density * (tau + self.inertia * omega) ** 2
+        n_f = nx[:, g] * f_x[..., None] + nz[:, g] * f_z[..., None]
+        magnitude = torch.where(n_f > 0.0, n_f * length[g] * gain[..., None], 0.0)
+        push_x = (-magnitude * f_x[..., None]).clamp(-self.clip, self.clip).sum(2)
+        push_z = (-magnitude * f_z[..., None]).clamp(-self.clip, self.clip).sum(2)
+        push_x, push_z = push_x * frac[:, g] * active, push_z * frac[:, g] * active
+        torque = (anchor[..., 2] - az) * push_x - (anchor[..., 0] - ax) * push_z
+        return torch.stack((push_x, push_z, torque), dim=2)
+
+
+class TensorParkourRules(TensorTrackRules):
+    """Parkour's rules for N worlds of a `Simulation` (see the module docstring).
+
+    Args:
+        rules: the compiled env's `ParkourRules` (static creepers).
+        device, dtype: where and in which precision the worlds' tensors live.
+    """
+
+    def __init__(self, rules: ParkourRules, device: torch.device, dtype=torch.float32):
+        arena = rules.arena
+        self.climbing = arena.climbing
+        hands = self.climbing.nb_sensors if self.climbing else 0
+        self.water = TensorWater(arena.water, arena.model, device, dtype)
+        self.record = ParkourRecord(
+            arena.grid.ncol, len(arena.creeper_geoms), hands, len(self.water.body_ids)
+        )
+        self._lidar = rules.lidar
+        super().__init__(rules, device, dtype)
+        f = {"device": device, "dtype": dtype}
+        self.hands, self.kind, self.end_on_death = hands, rules.kind, rules.end_on_death
+        self.survival_steps = rules.survival_steps
+        self.critical_any = _index(rules._critical_any, device)
+        self.critical_ceiling = _index(rules._critical_ceiling, device)
+        self.ceiling_lo, self.ceiling_hi = CEILING_RANGE
+        if hands:
+            c = self.climbing
+            self.hand_geoms, self.eq_ids = _index(c.geom_ids, device), _index(c.eq_ids, device)
+            self.radius = torch.as_tensor(c.radius).to(**f)
+            self.weld = torch.zeros((hands, 12), **f)  # hand point, identity quaternion
+            self.weld[:, 3:6] = torch.as_tensor(c.local_point).to(**f)
+            self.weld[:, 6] = 1.0  # torquescale 0 (column 10): the grasp pins a point only
+
+    def make_sensor(self, rules):
+        return TensorParkourLidar(self._lidar, self.record, self.device, self.dtype)
+
+    # ------------------------------------------------------------------ before physics
+    def servo(self, actions: torch.Tensor, sim: Simulation, heights: torch.Tensor) -> None:
+        """Dead bodies play zeros; climbers release what their grasp actions let go; then the
+        world's Parkour fields are written from its record (see the module docstring)."""
+        rec = self.record
+        dead = rec(heights, "survival")[:, 2:3] > 0.0
+        actions = actions.masked_fill(dead, 0.0)
+        super().servo(actions, sim, heights)
+        ceiling = rec(heights, "ceiling")
+        rows = ((self.ceiling_hi - ceiling) / (self.ceiling_hi - self.ceiling_lo)).clamp(0.0, 1.0)
+        sim.terrain("ceiling").copy_(rows[:, None, :].expand_as(sim.terrain("ceiling")))
+        xfrc = sim.field("xfrc_applied")
+        xfrc[:, self.water.body_ids, 0::2] = rec(heights, "forces").unflatten(1, (-1, 3))
+        if self.hands:
+            ready = actions[:, -self.hands :] > 0.0
+            rec(heights, "ready").copy_(ready)
+            holding = rec(heights, "holding")
+            holding.mul_(ready)
+            sim.field("eq_active")[:, self.eq_ids] = holding > 0.0
+            weld = self.weld.expand(len(actions), -1, -1).clone()
+            weld[..., 0:3] = rec(heights, "anchors").unflatten(1, (-1, 3))
+            sim.weld_anchors()[:, self.eq_ids] = weld
+
+    # ------------------------------------------------------------------ after physics
+    def _grasp(self, sim: Simulation, record: torch.Tensor) -> None:
+        """Touch flags; ready, free hands touching the ceiling or a creeper grab it."""
+        rec = self.record
+        points = sim.field("geom_xpos")[:, self.hand_geoms]  # (N, hands, 3)
+        pad = self.radius + TOUCH_MARGIN
+        ceiling = self._line_at(rec(record, "ceiling"), points[..., 0])
+        touching = points[..., 2] + self.radius + CEILING_MARGIN >= ceiling
+        cx, cz, hx, hz, used = rec.creepers(record)
+        rel_x = points[..., 0:1] - cx[:, None]  # (N, hands, pool); creepers sit at y = 0
+        rel = torch.stack(
+            (rel_x, points[..., 1:2].expand_as(rel_x), points[..., 2:3] - cz[:, None]), -1
+        )
+        box = torch.stack((hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz), -1)[:, None]
+        reach = box[:, 0].norm(dim=-1) + pad.max()  # bounding radius + pad, as Climbing's
+        near = ((rel * rel).sum(-1) <= (reach * reach)[:, None]).any(dim=1) & used
+        inside = ((rel.abs() <= box + pad[None, :, None, None]).all(-1) & near[:, None]).any(-1)
+        touching = touching | inside
+        rec(record, "touching").copy_(touching)
+        ready, holding = rec(record, "ready") > 0.0, rec(record, "holding") > 0.0
+        grab = ready & ~holding & touching
+        anchors = rec(record, "anchors").unflatten(1, (-1, 3))
+        anchors.copy_(torch.where(grab[..., None], points, anchors))
+        holding |= grab
+        rec(record, "holding").copy_(holding)
+
+    def _line_at(self, line: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """A line on the grid's columns (N, ncol) at x (N, k), linear, constant past its ends."""
+        s = self.sensor
+        u = ((x - s.x_min) / s.cell).clamp(0.0, s.ncol - 1)
+        j = u.floor().long().clamp(max=s.ncol - 2)
+        a, b = line.gather(1, j), line.gather(1, j + 1)
+        return a + (u - j) * (b - a)
+
+    def _survive(self, sim: Simulation, record: torch.Tensor) -> torch.Tensor:
+        """Count consecutive steps in/out of water; (N,) flags: the body died this step."""
+        survival = self.record(record, "survival")
+        below, above, dead = survival.unbind(1)
+        under = sim.field("xpos")[:, self.root, 2] <= self.record(record, "water")[:, 0]
+        alive = dead == 0.0
+        below = torch.where(alive, torch.where(under, below + 1, 0.0), below)
+        above = torch.where(alive, torch.where(under, 0.0, above + 1), above)
+        if self.kind in ("walker", "climber"):
+            died = alive & (below > self.survival_steps)
+        elif self.kind == "swimmer":
+            died = alive & (above > self.survival_steps)
+        else:
+            died = torch.zeros_like(alive)
+        survival.copy_(torch.stack((below, above, (~alive | died).to(below.dtype)), dim=1))
+        return died
+
+    def observe(self, sim: Simulation, heights: torch.Tensor):
+        """Parkour's layout: head, under water, dead, motor state, per hand (touching, holding),
+        lidar fractions, surface flags."""
+        x, track = super().observe(sim, heights)  # head, motor state, zero grasps, readings
+        rec, head, grasp = self.record, self.head_size, self.lidar_col - self.grasp_size
+        under = sim.field("xpos")[:, self.root, 2] <= rec(heights, "water")[:, 0]
+        dead = rec(heights, "survival")[:, 2]
+        hands = torch.stack((rec(heights, "touching"), rec(heights, "holding")), 2).flatten(1)
+        obs = torch.cat(
+            (
+                track[:, :head],
+                under[:, None].to(self.dtype),
+                dead[:, None],
+                track[:, head:grasp],
+                hands,
+                track[:, self.lidar_col : self.lidar_col + self.sensor.nb_rays],
+            ),
+            dim=1,
+        )
+        return x, obs
+
+    def critical(self, sim: Simulation) -> torch.Tensor:
+        """(N,) a critical part touches something other than the ceiling."""
+        if not len(self.critical_any):
+            return torch.zeros(sim.nworld, dtype=torch.bool, device=self.device)
+        touch = sim.field("sensordata")
+        return (touch[:, self.critical_any] > touch[:, self.critical_ceiling]).any(dim=1)
+
+    def outcome(self, sim: Simulation, actions, heights, prev_shaping):
+        rec = self.record
+        if self.hands:
+            self._grasp(sim, heights)
+        alive = rec(heights, "survival")[:, 2] == 0.0  # dead bodies played zeros: no cost
+        died = self._survive(sim, heights)
+        x, obs = self.observe(sim, heights)
+        shaping = self.potential(sim, x, obs)
+        cost = self.body.torque_cost_per_unit * torque_use(actions)
+        reward = shaping - prev_shaping - torch.where(alive, cost, 0.0)
+        fail = self.critical(sim) | (x < 0.0)
+        terminated = fail | (x > self.end_x)
+        if self.end_on_death:
+            terminated = terminated | died
+        level = rec(heights, "water")[:, 0]
+        rec(heights, "forces").copy_(self.water.forces(sim, level).flatten(1))
+        return obs, torch.where(fail, FAIL_REWARD, reward), terminated, shaping, None
