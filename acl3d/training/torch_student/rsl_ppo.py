@@ -71,6 +71,13 @@ class _Storage(RolloutStorage):
                 )  # fmt: skip
 
 
+def _foreach(optimizer: torch.optim.Optimizer) -> None:
+    """Adam's multi-tensor step, which torch picks only for CUDA tensors: the same arithmetic
+    (the same bits) in half the time of its per-tensor loop on the CPU."""
+    for group in optimizer.param_groups:
+        group["foreach"] = True
+
+
 class RewardNormaliser:
     """Divides rewards by the running std of each world's discounted return (VecNormalize's
     scheme, on tensors), clipped to [-10, 10]."""
@@ -125,6 +132,7 @@ class RslPPO:
         self.alg = PPO(
             actor, critic, storage, device=str(self.device), **{k: params[k] for k in keys}
         )
+        _foreach(self.alg.optimizer)
         self.alg.train_mode()
         self.steps_per_env = int(params["num_steps_per_env"])
         self.low, self.high = action_low.to(self.device), action_high.to(self.device)
@@ -184,6 +192,7 @@ class RslPPO:
 
     def load_state_dict(self, state: dict) -> None:
         self.alg.load(state, None, strict=True)
+        _foreach(self.alg.optimizer)
         self.alg.learning_rate = float(state["learning_rate"])
         if self.rewards is not None:
             self.rewards.load_state_dict(state["rewards"])
