@@ -240,3 +240,13 @@ def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
         )  # fmt: skip
     with pytest.raises(ValueError, match="actions: non-finite"):
         envs.step(np.full((2, 4), np.nan, np.float32))
+
+
+def test_the_many_world_simulation_takes_more_worlds_than_the_cpu_batched_env():
+    from acl3d.training.config import TrainConfig, uses_many_worlds, validate
+
+    warp = TrainConfig(student="rsl-ppo", vec_env="warp", n_envs=16_384)
+    assert uses_many_worlds(warp)
+    validate(warp, on_this_machine=False)
+    with pytest.raises(ValueError, match=r"n_envs.*4096"):
+        validate(TrainConfig(student="ppo", n_envs=16_384), on_this_machine=False)

@@ -258,8 +258,9 @@ def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> 
     """Upper bounds on counts that cost memory, processes or threads (the lower ones are above);
     those relative to this machine's cores and devices only `on_this_machine`."""
     from acl3d.envs.batched import MAX_ENVS
+    from acl3d.sim.worlds import MAX_WORLDS
 
-    check.integer("n_envs", config.n_envs, 1, MAX_ENVS)
+    check.integer("n_envs", config.n_envs, 1, MAX_WORLDS if uses_many_worlds(config) else MAX_ENVS)
     if config.eval_envs is not None:
         check.integer("eval_envs", config.eval_envs, 1, MAX_ENVS)
     check.integer("nb_test_episodes", config.nb_test_episodes, 1, MAX_TEST_EPISODES)
@@ -280,6 +281,15 @@ def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> 
                 f"starts {workers} (use vec_env batched or a larger envs_per_worker)",
             )
     check_device(config.device)
+
+
+def uses_many_worlds(config: TrainConfig) -> bool:
+    """Whether the run trains on the many-world simulation (MuJoCo Warp): a torch-native student
+    with vec_env warp, or auto on a GPU."""
+    from acl3d.training.students import is_torch_native
+
+    auto_gpu = config.vec_env == "auto" and str(config.device).startswith("cuda")
+    return is_torch_native(config.student) and (config.vec_env == "warp" or auto_gpu)
 
 
 def worker_processes(config: TrainConfig, n_envs: int) -> int:

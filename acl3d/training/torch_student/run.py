@@ -33,7 +33,7 @@ from acl3d.envs.tensor_vector import CpuTensorVectorEnv, TensorVectorEnv
 from acl3d.run_format.tables import CsvLog, truncate_csv
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
-from acl3d.training.config import TrainConfig, fixed_settings, student_params
+from acl3d.training.config import TrainConfig, fixed_settings, student_params, uses_many_worlds
 from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
 from acl3d.training.torch_student import rsl_ppo
@@ -83,9 +83,7 @@ class TorchRun:
             )
         self.params = student_params(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
-        self.warp = config.vec_env == "warp" or (
-            config.vec_env == "auto" and self.device.type == "cuda"
-        )
+        self.warp = uses_many_worlds(config)
         if self.device.type != "cpu" and not self.warp:
             raise ValueError(
                 f"vec_env={config.vec_env!r} with device={config.device!r}; valid on a GPU: "
