@@ -50,6 +50,19 @@ def make_twin(teacher):
 @pytest.mark.parametrize("name", NAMES)
 def test_update_batch_equals_one_update_per_episode(name):
     a, b = (make(name, SPACE, seed=1, **FAST[name]) for _ in range(2))
+    _assert_batches_equal_single_updates(a, b)
+
+
+@pytest.mark.parametrize("lag", [0, 7, 55])
+def test_alp_gmm_batches_equal_single_updates_across_refit_events(lag):
+    params = {**GMM_FAST, "nb_bootstrap": 25, "fit_lag": lag}
+    a, b = (make("alp-gmm", SPACE, seed=4, **params) for _ in range(2))
+    _assert_batches_equal_single_updates(a, b)
+    assert a.bk["episodes"] == b.bk["episodes"] and a.bk["tasks_alps"] == b.bk["tasks_alps"]
+    assert (a.r_min, a.r_max, a.raw_alps) == (b.r_min, b.r_max, b.raw_alps)
+
+
+def _assert_batches_equal_single_updates(a, b):
     tasks = np.random.default_rng(0).uniform(SPACE.low, SPACE.high, (90, SPACE.dim))
     returns = np.array([_reward(t, SPACE, i) for i, t in enumerate(tasks)])
     successes = returns > 0.5

@@ -210,16 +210,29 @@ class ALPGMM(GMMTeacherBase):
         )
 
     def _update_batch(self, tasks: np.ndarray, returns: np.ndarray, successes: np.ndarray):
-        """The episodes' ALPs in one batched neighbour search, then each episode's book-keeping
-        in order (a refit point may fall inside the batch); equal to the episodes one by one."""
+        """The episodes' ALPs in one batched neighbour search, then their book-keeping in bulk
+        between refit events (a fit or a refit's application, done at its own episode); equal
+        to the episodes one by one."""
         if self.alp_computer.max_size is not None:  # points may drop out inside the batch
             super()._update_batch(tasks, returns, successes)
             return
         units = ((tasks - self.mins) / self.span)[:, self.active]
-        alps = self.alp_computer.compute_batch(units, returns.astype(np.float64))
-        for unit, reward, alp in zip(units, returns.tolist(), alps.tolist()):
-            self._book_episode(unit, reward, alp)
-            self.nb_episodes += 1
+        alps = self.alp_computer.compute_batch(units, returns.astype(np.float64)).tolist()
+        rewards, j = returns.tolist(), 0
+        while j < len(units):
+            quiet = self._episodes_before_refit_event(len(units) - j)
+            if quiet:  # the episodes between refit events: book-keeping in bulk
+                end = j + quiet
+                self.r_min = min(self.r_min, min(rewards[j:end]))
+                self.r_max = max(self.r_max, max(rewards[j:end]))
+                self.tasks_unit.extend(units[j:end])
+                self.raw_alps.extend(alps[j:end])
+                del self.tasks_unit[: -self.fit_rate], self.raw_alps[: -self.fit_rate]
+                self.bk["tasks_alps"].extend(alps[j:end])
+                self.nb_episodes, j = self.nb_episodes + quiet, end
+            if j < len(units):  # the episode of a refit event, as one
+                self._book_episode(units[j], rewards[j], alps[j])
+                self.nb_episodes, j = self.nb_episodes + 1, j + 1
 
     def _component_weights(self) -> np.ndarray:
         return np.maximum(self.gmm.means[:, -1], 0.0)

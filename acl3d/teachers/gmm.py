@@ -227,6 +227,16 @@ class GMMTeacherBase(Teacher):
         units, raw returns): the sklearn backend fits there, as TeachMyAgent does."""
         raise NotImplementedError
 
+    def _episodes_before_refit_event(self, limit: int) -> int:
+        """How many of the next `limit` episodes `_episode_done` would do nothing for (no refit
+        to apply, no fit to start)."""
+        count = self.nb_episodes + 1  # the next episode's
+        first_fit = max(-(-count // self.fit_rate), -(-self.nb_bootstrap // self.fit_rate))
+        event = first_fit * self.fit_rate
+        if self._in_flight:
+            event = min(event, self._in_flight[0][0]["apply_at"])
+        return max(0, min(limit, event - count))
+
     def _episode_done(self, fit_data) -> None:
         """After an episode's book-keeping: apply a refit whose point has come, then start
         one if this episode completes a `fit_rate` batch (`fit_data()`: the points to fit)."""
