@@ -12,7 +12,7 @@
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
 #   scripts/gpu_benchmarks.sh learn OUT [SEEDS]
 #                                          # stump-v2's Random and ALP-GMM cells, SEEDS seeds
-#                                          # each, side by side (campaign run + export)
+#                                          # each, one after the other (campaign run + export)
 #   scripts/gpu_benchmarks.sh summary OUT  # every run's last evaluation and phases
 #
 # The runs use stump-v2's settings (acl3d/campaign/specs/stump-v2.yaml): Stump Tracks [0, 3] x
@@ -73,10 +73,11 @@ repeat)  # same seed twice, and the same run stopped at 500k and resumed, side b
     python3 scripts/compare_runs.py "$out/runs/repeat-a" "$out/runs/repeat-$other"
   done | tee "$out/repeat.txt"
   ;;
-learn)  # stump-v2's Random and ALP-GMM cells, seeds 0..SEEDS-1, side by side, then exported
+learn)  # stump-v2's Random and ALP-GMM cells, seeds 0..SEEDS-1, one at a time (runs side by
+  # side time-slice the GPU: four at once ran slower in all than one alone), then exported
   seeds=${3:-2}
   python3 -m acl3d campaign run stump-v2 --out "$out/stump-v2" --executor local \
-    --max-parallel $((2 * seeds)) --only teacher=random --only teacher=alp-gmm --seeds "$seeds" \
+    --max-parallel 1 --only teacher=random --only teacher=alp-gmm --seeds "$seeds" \
     >"$out/learn.txt" 2>&1
   python3 -m acl3d campaign export "$out/stump-v2" --protocol stump-v2 --out "$out/export" \
     >>"$out/learn.txt" 2>&1
