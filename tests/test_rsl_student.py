@@ -20,7 +20,7 @@ from acl3d import provenance  # noqa: E402
 from acl3d.cli import main  # noqa: E402
 from acl3d.teachers.base import load_state  # noqa: E402
 from acl3d.training import students  # noqa: E402
-from acl3d.training.torch_student import presets, rsl_ppo  # noqa: E402
+from acl3d.training.torch_student import presets  # noqa: E402
 from acl3d.training.torch_student.rsl_ppo import SavedPolicy  # noqa: E402
 
 STEPS = 768
@@ -113,32 +113,3 @@ def test_presets_and_checks():
         presets.hyperparameters("fast", 16, {"n_steps": 5})
     with pytest.raises(ValueError, match=r"hidden_dims"):
         presets.hyperparameters("fast", 16, {"hidden_dims": [0]})
-
-
-def test_minibatches_are_rsl_rl_s_rows_in_its_order():
-    """The one-gather minibatches hold the same rows, in the same order, as rsl_rl's storage
-    (so a run's update is unchanged, bit for bit)."""
-    from rsl_rl.storage import RolloutStorage
-
-    params = presets.hyperparameters("fast", 4, {"num_steps_per_env": 6, "num_mini_batches": 3})
-    torch.manual_seed(0)
-    student = rsl_ppo.RslPPO(params, 5, 2, 4, "cpu", -torch.ones(2), torch.ones(2))
-    with torch.inference_mode():
-        for _ in range(6):
-            student.act(torch.randn(4, 5))
-            student.record(
-                torch.randn(4), torch.rand(4) < 0.3, torch.rand(4) < 0.3, torch.randn(4, 5)
-            )
-    student.alg.compute_returns(rsl_ppo._obs(torch.randn(4, 5)))
-    storage = student.alg.storage
-    torch.manual_seed(1)
-    ours = list(storage.mini_batch_generator(3, 2))
-    torch.manual_seed(1)
-    theirs = list(RolloutStorage.mini_batch_generator(storage, 3, 2))
-    assert len(ours) == len(theirs) == 6
-    for a, b in zip(ours, theirs):
-        assert torch.equal(a.observations["policy"], b.observations["policy"])
-        for key in ("actions", "values", "advantages", "returns", "old_actions_log_prob"):
-            assert torch.equal(getattr(a, key), getattr(b, key)), key
-        for x, y in zip(a.old_distribution_params, b.old_distribution_params, strict=True):
-            assert torch.equal(x, y)

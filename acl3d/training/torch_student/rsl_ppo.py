@@ -47,33 +47,9 @@ def _obs(tensor: torch.Tensor) -> TensorDict:
     return TensorDict({"policy": tensor}, batch_size=[tensor.shape[0]], device=tensor.device)
 
 
-class _Storage(RolloutStorage):
-    """rsl_rl's rollout storage whose minibatches are gathered by one index per minibatch from
-    one flat table of the rollout, instead of one per field: the same rows in the same order."""
-
-    def mini_batch_generator(self, num_mini_batches: int, num_epochs: int = 8):
-        size = self.num_envs * self.num_transitions_per_env // num_mini_batches
-        indices = torch.randperm(num_mini_batches * size, requires_grad=False, device=self.device)
-        fields = (self.observations["policy"], self.actions, self.values, self.advantages,
-                  self.returns, self.actions_log_prob, *self.distribution_params)  # fmt: skip
-        widths = [f.shape[-1] for f in fields]
-        table = torch.cat([f.flatten(0, 1) for f in fields], dim=1)
-        for _ in range(num_epochs):
-            for i in range(num_mini_batches):
-                rows = table[indices[i * size : (i + 1) * size]]
-                obs, actions, values, advantages, returns, log_prob, *dist = (
-                    part.contiguous() for part in rows.split(widths, dim=1)
-                )
-                yield RolloutStorage.Batch(
-                    observations=_obs(obs), actions=actions, values=values,
-                    advantages=advantages, returns=returns, old_actions_log_prob=log_prob,
-                    old_distribution_params=tuple(dist),
-                )  # fmt: skip
-
-
 def _foreach(optimizer: torch.optim.Optimizer) -> None:
-    """Adam's multi-tensor step, which torch picks only for CUDA tensors: the same arithmetic
-    (the same bits) in half the time of its per-tensor loop on the CPU."""
+    """Adam's multi-tensor step, which torch picks only for CUDA tensors: the same bits as its
+    per-tensor loop, about 20% less optimiser time on the CPU (under 1% of an update)."""
     for group in optimizer.param_groups:
         group["foreach"] = True
 
@@ -123,7 +99,7 @@ class RslPPO:
             **{k: params[k] for k in ("hidden_dims", "activation", "init_noise_std")},
         }
         actor, critic, obs = _models(self.spec, num_envs, self.device)
-        storage = _Storage(
+        storage = RolloutStorage(
             "rl", num_envs, params["num_steps_per_env"], obs, [action_size], str(self.device)
         )
         keys = ("num_learning_epochs", "num_mini_batches", "clip_param", "gamma", "lam",
