@@ -25,6 +25,21 @@ def drive_batched(teacher, rounds: int, n: int, start: int = 0) -> np.ndarray:
     return np.concatenate(out)
 
 
+def play_singly(teacher, episodes: int) -> None:
+    """`episodes` times: one task, then its episode."""
+    for _ in range(episodes):
+        t = teacher.sample_tasks(1)
+        teacher.update_batch(t, [_reward(t[0], SPACE, teacher.nb_episodes)])
+
+
+def restored_copy(teacher, tmp_path, name: str, params: dict):
+    """A new teacher loaded from `teacher`'s saved state (other seed: the state decides)."""
+    save_state(tmp_path / "t", teacher.state_dict())
+    copy = make(name, SPACE, seed=0, **params)
+    copy.load_state_dict(load_state(tmp_path / "t"))
+    return copy
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_batches_are_in_bounds_reproducible_and_one_is_sample_task(name):
     a, b, c = (make(name, SPACE, seed=3, **FAST[name]) for _ in range(3))
@@ -110,16 +125,10 @@ def test_background_refit_applies_after_exactly_k_episodes_and_resumes_exactly(n
     drive_batched(a, 1, 3)  # 93 episodes: nothing pending
     for n_before in (82, 83):  # save while the refit of episode 80 is in flight
         c = make(name, SPACE, seed=2, **params)
-        for _ in range(n_before):
-            t = c.sample_tasks(1)
-            c.update_batch(t, [_reward(t[0], SPACE, c.nb_episodes)])
-        save_state(tmp_path / "t", c.state_dict())
-        d = make(name, SPACE, seed=0, **params)
-        d.load_state_dict(load_state(tmp_path / "t"))
+        play_singly(c, n_before)
+        d = restored_copy(c, tmp_path, name, params)
         for teacher in (c, d):
-            for _ in range(10):
-                t = teacher.sample_tasks(1)
-                teacher.update_batch(t, [_reward(t[0], SPACE, teacher.nb_episodes)])
+            play_singly(teacher, 10)
         assert c.bk["episodes"] == d.bk["episodes"] == [47, 87]
         np.testing.assert_array_equal(c.sample_tasks(30), d.sample_tasks(30))
 
@@ -129,17 +138,11 @@ def test_a_fit_lag_beyond_fit_rate_keeps_several_refits_in_flight_and_resumes_ex
     a, b = make("alp-gmm", SPACE, seed=3, **params), make("alp-gmm", SPACE, seed=3, **params)
     drive_batched(a, 11, 13)  # 143 episodes
     assert a.bk["episodes"] == [135] and len(a._in_flight) == 2
-    for _ in range(125):  # b stops with three refits in flight, saved and restored
-        t = b.sample_tasks(1)
-        b.update_batch(t, [_reward(t[0], SPACE, b.nb_episodes)])
+    play_singly(b, 125)  # b stops with three refits in flight, saved and restored
     assert len(b._in_flight) == 3
-    save_state(tmp_path / "t", b.state_dict())
-    c = make("alp-gmm", SPACE, seed=0, **params)
-    c.load_state_dict(load_state(tmp_path / "t"))
+    c = restored_copy(b, tmp_path, "alp-gmm", params)
     for teacher in (b, c):
-        for _ in range(60):
-            t = teacher.sample_tasks(1)
-            teacher.update_batch(t, [_reward(t[0], SPACE, teacher.nb_episodes)])
+        play_singly(teacher, 60)
     assert b.bk["episodes"] == c.bk["episodes"] == [135, 175]
     np.testing.assert_array_equal(b.sample_tasks(30), c.sample_tasks(30))
 
