@@ -112,13 +112,20 @@ def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):
     worlds.elapsed[1] = 0
     # float32 against float64: ~1e-6 until a foot's contact starts (the 6th step of this seed,
     # where the two part by ~3e-3, as contact onsets do; docs/architecture.md)
-    for k in range(5):
-        a = _actions(worlds, 100 + k)
+    assert_world_1_steps_as(cpu, worlds, [_actions(worlds, 100 + k) for k in range(5)], 1e-5, 1e-4)
+
+
+def assert_world_1_steps_as(cpu, worlds, actions, qpos_atol: float, obs_atol: float) -> None:
+    """World 1 of `worlds` and the CPU env `cpu` (in the same state) take the same actions and
+    stay within the tolerances (rewards within 1e-4), neither ending its episode."""
+    for a in actions:
         obs_cpu, reward_cpu, terminated, _, _ = cpu.step(a[1].numpy())
-        obs, reward, terminated_w, _, infos = worlds.step(a)
+        obs, reward, terminated_w, _, _ = worlds.step(a)
         assert not terminated and not terminated_w[1]
-        np.testing.assert_allclose(sim.field("qpos")[1].numpy(), cpu.data.qpos, atol=1e-5)
-        np.testing.assert_allclose(obs[1].numpy(), obs_cpu, atol=1e-4)
+        np.testing.assert_allclose(
+            worlds.sim.field("qpos")[1].numpy(), cpu.data.qpos, atol=qpos_atol
+        )
+        np.testing.assert_allclose(obs[1].numpy(), obs_cpu, atol=obs_atol)
         assert abs(float(reward[1]) - reward_cpu) < 1e-4
 
 

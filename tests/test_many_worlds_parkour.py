@@ -17,6 +17,8 @@ import torch
 
 pytest.importorskip("mujoco_warp", reason="the [gpu] extra: pip install 'acl3d[gpu]'")
 
+from test_many_worlds import assert_world_1_steps_as  # noqa: E402
+
 from acl3d.envs.climbing import Climbing, after_steps  # noqa: E402
 from acl3d.envs.many_worlds import many_worlds  # noqa: E402
 from acl3d.envs.parkour_env import ParkourEnv  # noqa: E402
@@ -148,14 +150,8 @@ def test_warp_follows_cpu_mujoco_in_water_over_the_first_steps(walkers):
     # float32 against float64: the first step (the CPU env's forces) agrees to 1e-7; the water
     # forces Warp's worlds compute then part from the CPU's by ~0.01 N of ~20 N (what rounding
     # the state to float32 alone gives), so qpos parts by ~1e-4 a step (3e-4 after 5 steps)
-    for k in range(5):
-        a = _actions(walkers, 100 + k)
-        obs_cpu, reward_cpu, terminated, _, _ = cpu.step(a[1].numpy())
-        obs, reward, terminated_w, _, _ = walkers.step(a)
-        assert not terminated and not terminated_w[1]
-        np.testing.assert_allclose(sim.field("qpos")[1].numpy(), cpu.data.qpos, atol=5e-4)
-        np.testing.assert_allclose(obs[1].numpy(), obs_cpu, atol=2e-3)
-        assert abs(float(reward[1]) - reward_cpu) < 1e-4
+    actions = [_actions(walkers, 100 + k) for k in range(5)]
+    assert_world_1_steps_as(cpu, walkers, actions, qpos_atol=5e-4, obs_atol=2e-3)
 
 
 def test_a_reset_touches_only_its_worlds(walkers):
