@@ -103,7 +103,7 @@ def test_sigkilled_run_resumes_bit_identically(reference, tmp_path, checkout):
 def test_presets_and_checks():
     assert students.is_on_policy("rsl-ppo")
     fast = students.hyperparameters("rsl-ppo", "fast", 16)
-    assert fast["num_steps_per_env"] == 128 and fast["hidden_dims"] == [128, 128]
+    assert fast["num_steps_per_env"] == 128 and fast["hidden_dims"] == [64, 64]
     assert students.collection_steps("rsl-ppo", fast, 16) == 2048
     bench = presets.hyperparameters("benchmark", 4096)
     assert bench["num_steps_per_env"] == 24 and bench["hidden_dims"] == [256, 128, 64]
