@@ -9,7 +9,7 @@ normalisation) and adapt the rollout length to how many worlds a machine runs:
   bonus. On Stump Tracks at stump-v1's 1M steps (64 worlds, 4 seeds; docs/benchmarks.md),
   5 x 4 with entropy 0.005 mastered 0-6% of the grid; 10 x 8 without entropy masters as much
   as SB3 PPO (Random 4.0%, ALP-GMM 7.5% against SB3's 3.8% and 8.5%) with [64, 64] as with
-  [128, 128] (3.8%, 9.5%), and [64, 64] trains faster (0.95x SB3 PPO's steps/s against
+  [128, 128] (3.8%, 9.5%), and [64, 64] trains faster (0.95-1.01x SB3 PPO's steps/s against
   0.78x): the update is about half of a 2-core machine's wall time, and its matrix products
   scale with the hidden layers' widths. More worlds per update (256) train faster still but
   learned nothing at 1M: the 8 minibatches grow, so there are fewer gradient steps per sample.
