@@ -203,3 +203,19 @@ def test_climbers_grasp_per_world_as_the_numpy_climbing_does():
     held = climbers.sim.field("geom_xpos")[0, hands][holding[0]]
     assert float((held - anchors).norm(dim=1).max()) < 0.02
     assert (climbers.sim.field("geom_xpos")[1, hands, 2] < top - 0.05).all()
+
+
+def test_a_restored_climber_continues_as_the_original():
+    climbers = many_worlds("parkour", 2, "cpu", body="climbing_profile_chimpanzee")
+    climbers.tasks[:] = climbers.task_space.to_vector(CLIMB)
+    climbers.reset(seed=3)
+    grasp = [[1.0, 1.0], [1.0, 1.0]]
+    for k in range(6):  # hands on the ceiling: weld constraints active
+        climbers.step(_actions(climbers, 70 + k, grasp))
+    saved = climbers.get_state()
+    runs = []
+    for _ in range(2):
+        climbers.set_state(saved)
+        runs.append([climbers.step(_actions(climbers, 80 + k, grasp))[0].clone() for k in range(4)])
+    assert bool((climbers.sim.field("eq_active")).any())
+    assert all(torch.equal(a, b) for a, b in zip(*runs))

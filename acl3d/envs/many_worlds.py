@@ -243,7 +243,9 @@ class ManyWorlds:
         return obs, reward, terminated, truncated, infos
 
     # ------------------------------------------------------------------ checkpoints
-    _SIM_FIELDS = ("qpos", "qvel", "qacc_warmstart", "ctrl", "time")
+    # the state, plus cvel and cdof_dot: MuJoCo Warp builds equality constraints (a climber's
+    # weld) from the last substep's, so a restore without them parts from the original run
+    _SIM_FIELDS = ("qpos", "qvel", "qacc_warmstart", "ctrl", "time", "cvel", "cdof_dot")
 
     def get_state(self) -> dict:
         """Every world's running episode as numpy arrays (physics state, terrain, rules, episode
@@ -275,7 +277,8 @@ class ManyWorlds:
             )
         sim = self.sim
         for name in self._SIM_FIELDS:
-            sim.field(name).copy_(torch.as_tensor(state[f"sim/{name}"]))
+            if f"sim/{name}" in state:  # checkpoints before cvel and cdof_dot were kept lack them
+                sim.field(name).copy_(torch.as_tensor(state[f"sim/{name}"]))
         sim.force_caps().copy_(torch.as_tensor(state["sim/force_caps"]))
         sim.terrain("terrain").copy_(torch.as_tensor(state["sim/terrain"]))
         for name in ("heights", "prev_shaping", "elapsed", "obs"):

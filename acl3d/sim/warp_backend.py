@@ -32,7 +32,10 @@ import torch
 from acl3d.extras import optional_dependency
 from acl3d.sim.worlds import MAX_WORLDS, WorldFields
 
-_FIELDS = ("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "sensordata", "qacc_warmstart", "time")
+_FIELDS = (
+    *("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "cdof_dot", "sensordata", "qacc_warmstart"),
+    "time",
+)
 # what forces and constraints computed on torch read (Parkour's water and grasps) and write
 _FORCE_FIELDS = (
     *("geom_xpos", "geom_xmat", "xipos", "subtree_com", "xaxis", "xanchor", "qfrc_actuator"),
@@ -144,7 +147,7 @@ class WarpSimulation:
     # ------------------------------------------------------------------ the Simulation protocol
     def field(self, name: str) -> torch.Tensor:
         """Live (N, ...) view: qpos, qvel, ctrl, xpos (N, nbody, 3), xmat (N, nbody, 3, 3),
-        cvel (N, nbody, 6), sensordata, qacc_warmstart, time (N,); geom_xpos, geom_xmat, xipos,
+        cvel (N, nbody, 6), cdof_dot (N, nv, 6), sensordata, qacc_warmstart, time (N,); geom_xpos, geom_xmat, xipos,
         subtree_com, xaxis, xanchor, qfrc_actuator, xfrc_applied (N, nbody, 6), eq_active
         (N, neq) bool."""
         return self._views[name]

@@ -55,7 +55,8 @@ class Simulation(Protocol):
     dtype: torch.dtype
 
     def field(self, name: str) -> torch.Tensor:
-        """Live (N, ...) tensor of a Data field: qpos, qvel, ctrl, xpos, xmat, cvel, sensordata;
+        """Live (N, ...) tensor of a Data field: qpos, qvel, ctrl, xpos, xmat, cvel, cdof_dot,
+        sensordata;
         for forces and constraints also geom_xpos, geom_xmat, xipos, subtree_com, xaxis,
         xanchor, qfrc_actuator, and the writable xfrc_applied and eq_active."""
         ...
