@@ -100,6 +100,12 @@ def terrain3d_task_space(names=None) -> TaskSpace:
     return TaskSpace(tuple(PARAMETERS[n] for n in names))
 
 
+def buildable_range(name: str) -> tuple[float, float]:
+    """(low, high) of what the generator can build for parameter `name`."""
+    validation.choice("terrain parameter", name, list(_BUILDABLE))
+    return _BUILDABLE[name]
+
+
 def check_buildable(task: Mapping[str, object]) -> None:
     """Raise ValueError naming the parameter, value and range if the generator cannot build it."""
     for name, value in task.items():
