@@ -257,3 +257,14 @@ def test_the_many_world_simulation_takes_more_worlds_than_the_cpu_batched_env():
     validate(warp, on_this_machine=False)
     with pytest.raises(ValueError, match=r"n_envs.*4096"):
         validate(TrainConfig(student="ppo", n_envs=16_384), on_this_machine=False)
+
+
+def test_runs_on_the_many_world_simulation_evaluate_ten_times_by_default():
+    from acl3d.training.config import TrainConfig
+
+    gpu = TrainConfig(student="rsl-ppo", device="cuda", steps=20_000_000)
+    assert gpu.effective_eval_every == 2_000_000
+    assert TrainConfig(student="rsl-ppo", vec_env="warp", steps=1_000_000).effective_eval_every == (
+        500_000
+    )
+    assert TrainConfig(student="ppo", steps=20_000_000).effective_eval_every == 500_000

@@ -21,6 +21,7 @@ from acl3d.teachers.test_sets import MAX_TASKS as MAX_TEST_TASKS
 DEFAULT_N_ENVS = 16  # training envs when none are asked for: one batched env of 16 fills 2 cores
 TEACHMYAGENT_EVAL_EVERY = 500_000
 MIN_DEFAULT_EVAL_EVERY = 50_000
+MANY_WORLD_EVALUATIONS = 10  # default evaluations of a run on the many-world simulation
 TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
 # Evaluation envs get their own seed, the same at every evaluation, so successive evaluations
 # differ only by the policy (not by the stump-height noise of the test tracks).
@@ -104,9 +105,14 @@ class TrainConfig:
 
         Never below 50k by default: one pass over a 100-task test set can cost up to 200k env
         steps, so runs shorter than 100k steps get only the final evaluation (the run says so).
+        On the many-world simulation, 10 evaluations a run (at least every 500k steps): a pass
+        plays up to 2,000 steps one after the other (13 s on an H200) while the worlds train
+        millions of steps in that time, so 40 passes would take most of a 20M-step run.
         """
         if self.eval_every is not None:
             return int(self.eval_every)
+        if uses_many_worlds(self):
+            return int(max(TEACHMYAGENT_EVAL_EVERY, self.steps // MANY_WORLD_EVALUATIONS))
         return int(min(TEACHMYAGENT_EVAL_EVERY, max(MIN_DEFAULT_EVAL_EVERY, self.steps // 5)))
 
     @property
