@@ -126,7 +126,9 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096, 16384])
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--warmup", type=int, default=20)
-    p.add_argument("--env", default="stump-tracks", help="stump-tracks, hexagon-tracks, parkour, terrain3d")
+    p.add_argument(
+        "--env", default="stump-tracks", help="stump-tracks, hexagon-tracks, parkour, terrain3d"
+    )
     p.add_argument("--body", help="default: the env's")
     p.add_argument("--first-step", action="store_true", help="also time a new process's start")
     p.add_argument("--json", help="write the rows to this file too")
