@@ -34,6 +34,8 @@ from acl3d.envs.many_worlds import ManyWorlds, many_worlds
 TASKS = {
     "stump-tracks": {"stump_height": 1.0, "obstacle_spacing": 3.0},
     "terrain3d": {"hill_slope": 0.2, "cross_slope": 0.15, "roughness": 0.1, "block_height": 0.3},
+    # water half way up and creepers: the walker swims, a climber has something to grasp
+    "parkour": {"water_level": 0.5, "creepers_height": 2.0, "creepers_spacing": 1.0},
 }
 
 

@@ -4,9 +4,11 @@
 #
 #   scripts/gpu_benchmarks.sh cpu OUT      # the CPU path on this machine's cores 4..: the batched
 #                                          # env (1 and 256 envs), SB3 PPO and rsl-ppo training
-#   scripts/gpu_benchmarks.sh env OUT [ENV] # the many-world simulation at 4,096 and 16,384
+#   scripts/gpu_benchmarks.sh env OUT [ENV [BODY]]
+#                                          # the many-world simulation at 4,096 and 16,384
 #                                          # worlds (stump-tracks: and a new process's first
-#                                          # step; or terrain3d)
+#                                          # step; terrain3d: big_quadru; parkour: BODY, e.g.
+#                                          # classic_bipedal in water, climbing_profile_chimpanzee)
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
@@ -49,9 +51,10 @@ env)
   extra=()
   [ "$env" = stump-tracks ] && extra=(--first-step)
   [ "$env" = terrain3d ] && extra=(--body big_quadru)
+  [ -n "${4:-}" ] && extra=(--body "$4")
   python3 scripts/bench_gpu.py --device cuda --env "$env" --sizes 4096 16384 --steps 100 \
-    "${extra[@]}" --json "$out/bench_gpu_$env.json" 2>&1 | grep -v '^Module' \
-    | tee "$out/bench_gpu_$env.txt"
+    "${extra[@]}" --json "$out/bench_gpu_$env${4:+_$4}.json" 2>&1 | grep -v '^Module' \
+    | tee "$out/bench_gpu_$env${4:+_$4}.txt"
   ;;
 speed)
   steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}
