@@ -16,9 +16,10 @@ import numpy as np
 import torch
 
 from acl3d.envs.arena import INIT_PUSH
-from acl3d.envs.parkour_arena import CEILING_RANGE, GROUND_RANGE
+from acl3d.envs.parkour_arena import GROUND_RANGE
 from acl3d.envs.parkour_env import ParkourEnv
 from acl3d.envs.tensor_parkour_rules import TensorParkourRules
+from acl3d.envs.tensor_parkour_terrain import TensorParkourTerrain
 from acl3d.envs.tensor_terrain import TensorStumpTracks
 from acl3d.envs.tensor_terrain3d import TensorTerrain3D
 from acl3d.envs.tensor_terrain3d_rules import TensorTerrain3DRules
@@ -132,8 +133,9 @@ class Terrain3DWorlds(WorldFamily):
 
 
 class ParkourWorlds(WorldFamily):
-    """Parkour: ground and ceiling heightfields, water level and creepers per world, generated on
-    the CPU (the CPPN) and written into each world's record (`TensorParkourRules`).
+    """Parkour: ground and ceiling heightfields, water level and creepers per world, built on
+    the device for all resetting worlds at once (`TensorParkourTerrain`: the CPPN as batched
+    matrix products) as each world's record (`TensorParkourRules`).
 
     Climbers hang from the start-pad ceiling: as every world places its body at the same
     height, each climber's world is moved down by the lift the single env gives its body (a
@@ -155,34 +157,31 @@ class ParkourWorlds(WorldFamily):
         self.fields = WorldFields(
             ("terrain", "ceiling"), ("terrain", "ceiling"), True, climbing is not None
         )
-        self._hand_top = 0.0
+        hand_top = None
         if climbing is not None:  # the highest hand's top with the body placed at home
             data = mujoco.MjData(env.model)
             env.arena.bound.place(data, env.arena.start_x, env.body.spawn_height)
             mujoco.mj_kinematics(env.model, data)
-            self._hand_top = float((data.geom_xpos[climbing.geom_ids, 2] + climbing.radius).max())
+            hand_top = float((data.geom_xpos[climbing.geom_ids, 2] + climbing.radius).max())
+        self.parkour_terrain = TensorParkourTerrain(
+            env.arena.generator, env.task_space, self.rules.record, env.arena.grid.x, hand_top,
+            device,
+        )  # fmt: skip
 
     def push(self, ids, generator, rngs) -> torch.Tensor:
         if self.template.body.initial_push:
             return super().push(ids, generator, rngs)
         return torch.zeros(len(ids), device=self.device, dtype=F64)  # the fish: none drawn
 
+    def uses_world_rngs(self) -> bool:
+        return False
+
     def terrain(self, ids, tasks, generator, rngs):
-        env = self.template
-        arena, x = env.arena, env.arena.grid.x
-        records = []
-        for i, task in zip(ids, tasks):
-            task = env.task_space.to_dict(task)
-            env.composition.check_buildable(task)
-            t = arena.generator.generate(task, rngs[i])
-            shift = self._hand_top - t.ceiling[0] if arena.climbing else 0.0
-            ground = np.clip(np.interp(x, t.x, t.ground + shift), *GROUND_RANGE)
-            ceiling = np.clip(np.interp(x, t.x, t.ceiling + shift), *CEILING_RANGE)
-            creepers = t.creepers + np.array([0.0, 0.0, shift, shift])
-            records.append(
-                self.rules.record.terrain_row(ground, ceiling, t.water_z + shift, creepers)
-            )
-        records = torch.as_tensor(np.stack(records), device=self.device, dtype=F64)
+        env, tasks = self.template, np.asarray(tasks, dtype=np.float64)
+        for task in tasks:  # a teacher's unbuildable task is its bug
+            env.composition.check_buildable(env.task_space.to_dict(task))
+        normals = self.parkour_terrain.draws(len(ids), generator)
+        records = self.parkour_terrain.records(torch.as_tensor(tasks, device=self.device), normals)
         lo, hi = GROUND_RANGE
         ground = (self.rules.record(records, "ground") - lo) / (hi - lo)
         return records, ground[:, None, :].expand(-1, 2, -1)
