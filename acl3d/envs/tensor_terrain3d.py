@@ -85,7 +85,7 @@ class TensorTerrain3D:
             self._heights(tasks[lo : lo + CHUNK], {k: v[lo : lo + CHUNK] for k, v in draws.items()})
             for lo in range(0, len(tasks), CHUNK)
         ]
-        return torch.cat(parts) if len(parts) != 1 else parts[0]
+        return torch.cat(parts)
 
     def _parameter(self, tasks: torch.Tensor, name: str) -> torch.Tensor:
         if name in self.names:

@@ -27,6 +27,7 @@ from acl3d.envs.tensor_track_rules import TensorTrackRules
 from acl3d.envs.terrain3d_env import Terrain3DEnv
 from acl3d.envs.track_env import TrackEnv
 from acl3d.sim.worlds import WorldFields
+from acl3d.terrain.parkour import BUILDABLE as PARKOUR_BUILDABLE
 from acl3d.terrain.terrain3d import buildable_range
 from acl3d.terrain.tracks import MAX_TERRAIN_HEIGHT
 
@@ -65,6 +66,23 @@ class WorldFamily(ABC):
             return u * (2 * INIT_PUSH) - INIT_PUSH
         draws = [rngs[i].uniform(-INIT_PUSH, INIT_PUSH) for i in ids]
         return torch.as_tensor(draws, device=self.device, dtype=F64)
+
+    def _buildable_columns(self, ranges: dict[str, tuple[float, float]]) -> np.ndarray:
+        """(2, d) low and high of every task-vector column from the generator's buildable
+        range of each parameter."""
+        space = self.template.task_space
+        bounds = np.empty((2, space.dim))
+        for name in space.names:
+            bounds[:, space.slice(name)] = np.asarray(ranges[name], dtype=np.float64)[:, None]
+        return bounds
+
+    def _check_buildable(self, tasks: np.ndarray, bounds: np.ndarray) -> None:
+        """Tasks (k, d) within `_buildable_columns`; a teacher's unbuildable task is its bug,
+        reported in the generator's words for the first one."""
+        outside = ~np.isfinite(tasks) | (tasks < bounds[0]) | (tasks > bounds[1])
+        if outside.any():
+            first = tasks[np.flatnonzero(outside.any(axis=1))[0]]
+            self.template.composition.check_buildable(self.template.task_space.to_dict(first))
 
     def _cpu_heights(self, ids, tasks, rngs, generate) -> torch.Tensor:
         """The family's CPU generator, world by world on its own stream (tasks checked)."""
@@ -115,18 +133,14 @@ class Terrain3DWorlds(WorldFamily):
         self.rules = TensorTerrain3DRules(env.rules, device, dtype)
         names = tuple(env.task_space.names)
         self.fields3d = TensorTerrain3D(env.arena.generator, names, device)
-        self._buildable = np.array([buildable_range(name) for name in names]).T
+        self._buildable = self._buildable_columns({n: buildable_range(n) for n in names})
 
     def uses_world_rngs(self) -> bool:
         return False
 
     def terrain(self, ids, tasks, generator, rngs):
         arena, tasks = self.template.arena, np.asarray(tasks, dtype=np.float64)
-        outside = ~np.isfinite(tasks) | (tasks < self._buildable[0]) | (tasks > self._buildable[1])
-        if outside.any():  # a teacher's unbuildable task is its bug: the generator's message
-            self.template.composition.check_buildable(
-                self.template.task_space.to_dict(tasks[np.flatnonzero(outside.any(axis=1))[0]])
-            )
+        self._check_buildable(tasks, self._buildable)
         draws = self.fields3d.draws(len(ids), generator)
         field = self.fields3d.heights(torch.as_tensor(tasks, device=self.device), draws)
         return field, ((field - arena._offset) * arena._inv_range).clamp(0.0, 1.0)
@@ -163,6 +177,7 @@ class ParkourWorlds(WorldFamily):
             env.arena.bound.place(data, env.arena.start_x, env.body.spawn_height)
             mujoco.mj_kinematics(env.model, data)
             hand_top = float((data.geom_xpos[climbing.geom_ids, 2] + climbing.radius).max())
+        self._buildable = self._buildable_columns(PARKOUR_BUILDABLE)
         self.parkour_terrain = TensorParkourTerrain(
             env.arena.generator, env.task_space, self.rules.record, env.arena.grid.x, hand_top,
             device,
@@ -177,9 +192,8 @@ class ParkourWorlds(WorldFamily):
         return False
 
     def terrain(self, ids, tasks, generator, rngs):
-        env, tasks = self.template, np.asarray(tasks, dtype=np.float64)
-        for task in tasks:  # a teacher's unbuildable task is its bug
-            env.composition.check_buildable(env.task_space.to_dict(task))
+        tasks = np.asarray(tasks, dtype=np.float64)
+        self._check_buildable(tasks, self._buildable)
         normals = self.parkour_terrain.draws(len(ids), generator)
         records = self.parkour_terrain.records(torch.as_tensor(tasks, device=self.device), normals)
         lo, hi = GROUND_RANGE
