@@ -20,6 +20,7 @@ from acl3d import provenance  # noqa: E402
 from acl3d.cli import main  # noqa: E402
 from acl3d.teachers.base import load_state  # noqa: E402
 from acl3d.training import students  # noqa: E402
+from acl3d.training.config import TrainConfig, validate  # noqa: E402
 from acl3d.training.torch_student import presets  # noqa: E402
 from acl3d.training.torch_student.rsl_ppo import SavedPolicy  # noqa: E402
 
@@ -98,6 +99,34 @@ def test_sigkilled_run_resumes_bit_identically(reference, tmp_path, checkout):
     )
     for key, value in a["student"]["actor_state_dict"].items():
         assert torch.equal(value, b["student"]["actor_state_dict"][key]), key
+
+
+def _evals(run: Path) -> list[list[str]]:
+    """evals.csv without its wall-time column."""
+    return [line.split(",")[:-1] for line in (run / "evals.csv").read_text().splitlines()]
+
+
+def test_evaluations_played_together_survive_a_kill_after_a_checkpoint(reference, tmp_path):
+    """Three evaluations wait for one pass (`--eval-together 3`): their results equal those of
+    evaluations played when due, and a run killed while two were waiting (the checkpoint of step
+    640 keeps their policies) plays them after its resume with the same results."""
+    out = tmp_path / "together"
+    assert main(["train", *COMMON, "--eval-together", "3", "--out", str(out)]) == 0
+    assert (out / "evals_tasks.csv").read_text() == (reference / "evals_tasks.csv").read_text()
+    assert _evals(out) == _evals(reference)
+    state = torch.load(out / "checkpoints" / "step_000000000640" / "student.pt")
+    assert [p["step"] for p in state["pending_evaluations"]] == [256, 512]
+    (out / "checkpoints" / "LATEST").write_text("step_000000000640\n")  # killed after it
+    (out / "final_model.zip").unlink()
+    assert main(["train", "--resume", str(out), "--no-progress", "--quiet"]) == 0
+    assert (out / "evals_tasks.csv").read_text() == (reference / "evals_tasks.csv").read_text()
+    assert _evals(out) == _evals(reference)
+    assert main(["train", *COMMON, "--eval-together", "0", "--out", str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()
+    with pytest.raises(ValueError, match=r"eval_together=65; valid: an integer in \[1, 64\]"):
+        validate(TrainConfig(student="rsl-ppo", eval_together=65), on_this_machine=False)
+    with pytest.raises(ValueError, match="eval_together=2; valid: None or 1 with an SB3"):
+        validate(TrainConfig(student="ppo", eval_together=2), on_this_machine=False)
 
 
 def test_presets_and_checks():

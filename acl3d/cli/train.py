@@ -137,6 +137,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--eval-envs", type=int, help="parallel evaluation environments (default n-envs)"
     )
+    g.add_argument(
+        "--eval-together",
+        type=int,
+        help="torch-native students: evaluations played side by side in one pass, their results "
+        "written then (default 1; on the many-world simulation 10, i.e. a default run's all at "
+        "its end)",
+    )
     add_test_set_arguments(
         g, "the environment's default set", _DEFAULTS.nb_test_episodes, unset_is_none=True
     )
@@ -287,7 +294,7 @@ def options_from_args(args) -> dict:
     simple = (
         "env", "body", "teacher", "student", "preset", "steps", "n_envs", "seed", "out",
         "expert_knowledge", "reset_student_every", "buffer_size", "eval_every", "eval_envs",
-        "test_set", "nb_test_episodes", "checkpoint_every", "periodical_samples_every", "vec_env",
+        "eval_together", "test_set", "nb_test_episodes", "checkpoint_every", "periodical_samples_every", "vec_env",
         "envs_per_worker", "start_method", "torch_threads", "device", "progress_bar",
         "save_replay_buffer", "tensorboard", "verbose",
         *_FLAGS,

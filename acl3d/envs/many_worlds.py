@@ -23,6 +23,8 @@ first); a diverged world (non-finite state) ends its episode flagged `unstable` 
 
 from __future__ import annotations
 
+import secrets
+
 import mujoco
 import numpy as np
 import torch
@@ -139,22 +141,27 @@ class ManyWorlds:
         return data.qpos.copy(), scale
 
     # ------------------------------------------------------------------ resets
-    def reset(self, seed: int | None = None) -> torch.Tensor:
+    def reset(self, seed: int | None = None, period: int | None = None) -> torch.Tensor:
         """Every world starts an episode, its terrain and push drawn from `seed` (see the module
-        docstring)."""
+        docstring; None: a random seed).
+
+        period: worlds i and i + period draw the same terrain and push, as worlds 0..period-1 of
+        `period` worlds reset with `seed` would (copies of one set of episodes: several policies
+        evaluated side by side on the same tracks); None: N.
+        """
         n = self.num_envs
+        period = n if period is None else validation.integer("period", period, 1, n)
         seed = validation.seed(seed)
         if seed is None:
-            self._generator.seed()
-        else:
-            self._generator.manual_seed(seed)
+            seed = secrets.randbelow(2**31)
         if self.family.uses_world_rngs():
-            self._rngs = [
-                seeding.np_random(None if seed is None else seed + i)[0] for i in range(n)
-            ]
+            self._rngs = [seeding.np_random(seed + i % period)[0] for i in range(n)]
         ids = np.arange(n)
         tasks = self._next_tasks(self.stats.pop(), ids)
-        self.obs = self._reset_worlds(ids, tasks, self.obs)
+        for lo in range(0, n, period):
+            self._generator.manual_seed(seed)
+            block = ids[lo : lo + period]
+            self.obs = self._reset_worlds(block, tasks[block], self.obs)
         return self.obs
 
     def _next_tasks(self, finished, ids: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ DEFAULT_N_ENVS = 16  # training envs when none are asked for: one batched env of
 TEACHMYAGENT_EVAL_EVERY = 500_000
 MIN_DEFAULT_EVAL_EVERY = 50_000
 MANY_WORLD_EVALUATIONS = 10  # default evaluations of a run on the many-world simulation
+MAX_EVAL_TOGETHER = 64  # evaluations one pass plays side by side (64 copies of the test set)
 TEACHMYAGENT_PERIODICAL_SAMPLES = 250_000
 # Evaluation envs get their own seed, the same at every evaluation, so successive evaluations
 # differ only by the policy (not by the stump-height noise of the test tracks).
@@ -75,6 +76,9 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     eval_every: int | None = None
     eval_envs: int | None = None
+    # evaluations played side by side in one pass (torch-native students): None = 1 on the CPU
+    # batched env, all of a default run's on the many-world simulation (`effective_eval_together`)
+    eval_together: int | None = None
     eval_stochastic: bool = False
     test_set: str | None = None
     nb_test_episodes: int = 25
@@ -126,6 +130,18 @@ class TrainConfig:
         return int(min(TEACHMYAGENT_PERIODICAL_SAMPLES, max(1, self.steps // 10)))
 
     @property
+    def effective_eval_together(self) -> int:
+        """How many evaluation steps' policies wait to be played side by side in one pass.
+
+        On the many-world simulation a pass costs up to 2,000 steps one after the other, whatever
+        its worlds: the 10 evaluations of a default run cost one pass at its end (their results
+        are written then); on the CPU batched env each evaluation runs when it falls due.
+        """
+        if self.eval_together is not None:
+            return int(self.eval_together)
+        return MANY_WORLD_EVALUATIONS if uses_many_worlds(self) else 1
+
+    @property
     def effective_eval_envs(self) -> int:
         return int(self.eval_envs or self.n_envs)
 
@@ -172,7 +188,7 @@ class TrainConfig:
 # processes get theirs pushed one episode ahead, so the teacher sees a different order.
 RESUME_MAY_CHANGE = (
     "steps", "progress_bar", "verbose", "start_method", "torch_threads", "eval_envs",
-    "tensorboard",
+    "eval_together", "tensorboard",
 )  # fmt: skip
 
 
@@ -192,7 +208,7 @@ def fixed_settings(config: TrainConfig) -> dict:
 # ---------------------------------------------------------------------- validation
 _COUNTS = (
     "steps", "n_envs", "nb_test_episodes", "torch_threads", "eval_envs", "eval_every",
-    "checkpoint_every", "buffer_size", "reset_student_every", "periodical_samples_every", "seed",
+    "eval_together", "checkpoint_every", "buffer_size", "reset_student_every", "periodical_samples_every", "seed",
     "envs_per_worker",
 )  # fmt: skip
 _REQUIRED_COUNTS = ("steps", "n_envs", "nb_test_episodes", "torch_threads", "seed")
@@ -253,6 +269,11 @@ def validate(config: TrainConfig, *, on_this_machine: bool = True) -> None:
             f"reset_student_every ({config.reset_student_every}) must be < steps ({config.steps}), "
             "otherwise the student is never reset"
         )
+    if config.eval_together not in (None, 1) and not students.is_torch_native(config.student):
+        raise check.fail(
+            "eval_together", config.eval_together, "None or 1 with an SB3 student (its "
+            "evaluations run when they fall due); torch-native students: [1, 64]",
+        )  # fmt: skip
     excludes_exploratory(config)
 
 
@@ -269,6 +290,8 @@ def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> 
     check.integer("n_envs", config.n_envs, 1, MAX_WORLDS if uses_many_worlds(config) else MAX_ENVS)
     if config.eval_envs is not None:
         check.integer("eval_envs", config.eval_envs, 1, MAX_ENVS)
+    if config.eval_together is not None:
+        check.integer("eval_together", config.eval_together, 1, MAX_EVAL_TOGETHER)
     check.integer("nb_test_episodes", config.nb_test_episodes, 1, MAX_TEST_EPISODES)
     check.integer("seed", config.seed, 0, MAX_SEED)
     if not on_this_machine:

@@ -2,8 +2,12 @@
 
 All test tasks start together (up to `MAX_ENVS` worlds; a larger test set is played in chunks of
 that many), each world seeded `eval_seed + k`, and the pass ends when every world has finished
-its first episode. The policy gets (N, obs) tensors; evaluation draws from its own random
-streams, so training continues exactly as without it.
+its first episode. An evaluation plays `PolicySnapshot`s: on the many-world simulation several
+snapshots (the policies of several evaluation steps) play side by side, each on its own copy of
+the test set, in one pass whose steps cost what one snapshot's would. Sampled actions come from
+a generator of each snapshot's own, seeded with the evaluation seed, so a snapshot's results
+depend only on its weights and the seed, not on what it was played beside, and training's
+random streams stay as they were.
 """
 
 from __future__ import annotations
@@ -23,57 +27,79 @@ from acl3d.training.evaluation import EvalResult, own_random_streams
 CHECK_EVERY = 32  # steps between the many-world evaluator's host checks
 
 
+class _Outcomes:
+    """One snapshot's results over the test set, filled chunk by chunk."""
+
+    def __init__(self, n_tasks: int):
+        self.returns, self.lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
+        self.successes = np.zeros(n_tasks, dtype=bool)
+
+
 class ChunkedEvaluator(ABC):
-    """Plays the test set in chunks of `num_worlds` tasks (one world each); subclasses set
-    `tasks`, `seed`, `num_worlds`, `success_return` and play one chunk in `_play`."""
+    """Plays the test set in chunks of `num_worlds` tasks (one world each), `copies` snapshots
+    at a time; subclasses set `tasks`, `seed`, `num_worlds`, `copies`, `success_return` and
+    `device`, and play one chunk in `_play`."""
 
     tasks: np.ndarray
     seed: int
     num_worlds: int
+    copies: int
     success_return: float
+    device: torch.device
 
-    def run(self, policy) -> EvalResult:
-        """`policy((N, obs) float32 tensor) -> (N, act) tensor` (on the worlds' device)."""
-        n_tasks = len(self.tasks)
-        returns, lengths = np.zeros(n_tasks), np.zeros(n_tasks, dtype=np.int64)
-        successes = np.zeros(n_tasks, dtype=bool)
-        with own_random_streams(self.seed):
-            for start in range(0, n_tasks, self.num_worlds):
-                chunk = np.arange(start, min(start + self.num_worlds, n_tasks))
-                self._play(policy, chunk, returns, lengths, successes)
-        return EvalResult(
-            self.tasks.astype(np.float64), returns, lengths, successes, self.success_return
-        )
+    def run(self, policies: list, stochastic: bool) -> list[EvalResult]:
+        """The results of each of `policies` (`PolicySnapshot`s on the worlds' device): sampled
+        actions (`stochastic`) or the mean ones."""
+        n_tasks, results = len(self.tasks), []
+        for lo in range(0, len(policies), self.copies):
+            group = policies[lo : lo + self.copies]
+            generators = [
+                torch.Generator(self.device).manual_seed(self.seed) if stochastic else None
+                for _ in group
+            ]
+            outcomes = [_Outcomes(n_tasks) for _ in group]
+            with own_random_streams(self.seed):
+                for start in range(0, n_tasks, self.num_worlds):
+                    chunk = np.arange(start, min(start + self.num_worlds, n_tasks))
+                    self._play(group, generators, chunk, outcomes)
+            tasks = self.tasks.astype(np.float64)
+            results += [
+                EvalResult(tasks, o.returns, o.lengths, o.successes, self.success_return)
+                for o in outcomes
+            ]
+        return results
 
     @abstractmethod
-    def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
-        """Play test tasks `chunk` at once; write their results into the arrays."""
+    def _play(self, policies, generators, chunk: np.ndarray, outcomes) -> None:
+        """Play test tasks `chunk` at once with each policy; write into its `_Outcomes`."""
 
 
 class WorldEvaluator(ChunkedEvaluator):
-    """Evaluates a policy on `tasks` with the run's evaluation seed (the same every pass)."""
+    """Evaluates snapshots one after another on the CPU batched env, with the run's evaluation
+    seed (the same every pass)."""
 
     def __init__(self, config, tasks):
         self.tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float32))
-        self.seed = config.eval_seed
+        self.seed, self.copies, self.device = config.eval_seed, 1, torch.device("cpu")
         self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
         self.vector = BatchedVectorEnv(
             config.env, self.num_worlds, body=config.body, **config.env_kwargs
         )
         self.success_return = float(self.vector.envs[0].curriculum_profile.success_return)
 
-    def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
+    def _play(self, policies, generators, chunk: np.ndarray, outcomes) -> None:
+        (policy,), (generator,), (out,) = policies, generators, outcomes
         n = self.num_worlds
         index = [chunk[min(i, len(chunk) - 1)] for i in range(n)]  # spare worlds replay the last
         options = [{"task": self.tasks[k]} for k in index]
         obs, _ = self.vector.reset(seed=[self.seed + k for k in index], options=options)
         running = np.arange(n) < len(chunk)
         while running.any():
-            actions = policy(torch.from_numpy(np.asarray(obs, dtype=np.float32)))
+            actions = policy(torch.from_numpy(np.asarray(obs, dtype=np.float32)), generator)
             obs, _, terminated, truncated, infos = self.vector.step(actions.cpu().numpy())
             for i in np.flatnonzero((terminated | truncated) & running):
                 report, k = infos[INFO_KEY][i], index[i]
-                returns[k], lengths[k], successes[k] = (
+                out.returns[k], out.lengths[k], out.successes[k] = (
                     report["return"],
                     report["length"],
                     report["success"],
@@ -85,31 +111,39 @@ class WorldEvaluator(ChunkedEvaluator):
 
 
 class ManyWorldEvaluator(ChunkedEvaluator):
-    """`WorldEvaluator` on the many-world simulation (MuJoCo Warp): test task k is world k of
-    one `ManyWorldTracks` on the run's device, all played at once; the terrain draws come from
-    the evaluation seed, so every pass plays the same tracks."""
+    """`WorldEvaluator` on the many-world simulation (MuJoCo Warp): `copies` blocks of
+    `num_worlds` worlds on the run's device, test task k world k of each block, snapshot b
+    playing block b; every block draws the same terrain from the evaluation seed, so every pass
+    plays the same tracks."""
 
-    def __init__(self, config, tasks, device):
+    def __init__(self, config, tasks, device, copies: int = 1):
         self.tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float64))
-        self.seed = config.eval_seed
+        self.seed, self.copies, self.device = config.eval_seed, int(copies), torch.device(device)
         self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
         self.worlds = many_worlds(
-            config.env, self.num_worlds, device, autoreset=False, body=config.body,
+            config.env, self.num_worlds * self.copies, device, autoreset=False, body=config.body,
             **config.env_kwargs,
         )  # fmt: skip
         self.success_return = float(self.worlds.curriculum_profile.success_return)
 
-    def _play(self, policy, chunk: np.ndarray, returns, lengths, successes) -> None:
+    def _play(self, policies, generators, chunk: np.ndarray, outcomes) -> None:
         """Each world's first episode, its results kept on the device as it ends; the host
-        asks whether any world still runs once every `CHECK_EVERY` steps only."""
+        asks whether any world still runs once every `CHECK_EVERY` steps only. Blocks beyond
+        the snapshots given replay the last one (their results are not read)."""
         worlds, n, k = self.worlds, self.num_worlds, len(chunk)
         index = np.minimum(chunk[0] + np.arange(n), chunk[-1])  # spare worlds replay the last
-        worlds.tasks[:] = self.tasks[index]
-        obs = worlds.reset(seed=self.seed + int(chunk[0]))
-        running = torch.arange(n, device=worlds.device) < k
+        worlds.tasks[:] = np.tile(self.tasks[index], (self.copies, 1))
+        obs = worlds.reset(seed=self.seed + int(chunk[0]), period=n)
+        spare = len(policies) - 1
+        blocks = [(policies[min(b, spare)], generators[b] if b <= spare else None)
+                  for b in range(self.copies)]  # fmt: skip
+        running = (torch.arange(n * self.copies, device=worlds.device) % n) < k
         ended_with = None
         for step in itertools.count(1):
-            obs, _, terminated, truncated, infos = worlds.step(policy(obs))
+            actions = torch.cat(
+                [policy(obs[b * n : (b + 1) * n], g) for b, (policy, g) in enumerate(blocks)]
+            )
+            obs, _, terminated, truncated, infos = worlds.step(actions)
             ended = (terminated | truncated) & running
             now = [infos[key] for key in ("episode_return", "episode_length", "success")]
             ended_with = now if ended_with is None else ended_with
@@ -117,8 +151,9 @@ class ManyWorldEvaluator(ChunkedEvaluator):
             running &= ~ended
             if step % CHECK_EVERY == 0 and not bool(running.any()):
                 break
-        ret, length, success = (value[:k].cpu().numpy() for value in ended_with)
-        returns[chunk], lengths[chunk], successes[chunk] = ret, length, success
+        values = [value.cpu().numpy().reshape(self.copies, n)[:, :k] for value in ended_with]
+        for b, out in enumerate(outcomes):
+            out.returns[chunk], out.lengths[chunk], out.successes[chunk] = (v[b] for v in values)
 
     def close(self) -> None:
         self.worlds.close()

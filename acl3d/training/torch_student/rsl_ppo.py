@@ -43,6 +43,15 @@ def _models(spec: dict, num_envs: int, device) -> tuple[MLPModel, MLPModel, Tens
     return actor.to(device), critic.to(device), obs
 
 
+def _actor(spec: dict, weights: dict, device) -> MLPModel:
+    """An actor of `spec` with `weights`, built without a draw from the global generator (its
+    initial weights, overwritten anyway, would take draws that belong to training)."""
+    with torch.random.fork_rng(devices=[]):  # the models are initialised on the CPU
+        actor = _models(spec, 1, device)[0]
+    actor.load_state_dict(weights)
+    return actor
+
+
 def _obs(tensor: torch.Tensor) -> TensorDict:
     return TensorDict({"policy": tensor}, batch_size=[tensor.shape[0]], device=tensor.device)
 
@@ -153,10 +162,13 @@ class RslPPO:
         with torch.inference_mode():
             return self.alg.critic(_obs(obs.to(self.device))).squeeze(-1)
 
-    def policy(self, obs: torch.Tensor, deterministic: bool = True) -> torch.Tensor:
-        with torch.inference_mode():
-            actions = self.alg.actor(_obs(obs.to(self.device)), stochastic_output=not deterministic)
-        return actions.clamp(self.low, self.high)
+    def snapshot(self, weights: dict | None = None) -> PolicySnapshot:
+        """The actor as it is now (or with `weights`, a snapshot's `state_dict`), frozen: what
+        an evaluation plays while training goes on."""
+        weights = self.alg.actor.state_dict() if weights is None else weights
+        return PolicySnapshot(
+            self.spec, _actor(self.spec, weights, self.device), self.low, self.high
+        )
 
     # ------------------------------------------------------------------ state
     def state_dict(self) -> dict:
@@ -182,22 +194,55 @@ class RslPPO:
             z.writestr(POLICY_MEMBERS[1], buffer.getvalue())
 
 
+class PolicySnapshot:
+    """A copy of the actor (weights and observation normaliser) at one step of training.
+
+    Evaluations play snapshots, so several steps' policies can be evaluated side by side in one
+    pass, after the training that followed them. Sampled actions come from the caller's
+    generator: `torch.normal` with the actor's mean and std, the draws `Normal.sample` makes from
+    the global generator, which an evaluation must leave to training.
+    """
+
+    def __init__(self, spec: dict, actor: MLPModel, low, high):
+        self.spec, self.actor = dict(spec), actor.eval()
+        self.device = next(actor.parameters()).device
+        self.low = torch.as_tensor(low, device=self.device)
+        self.high = torch.as_tensor(high, device=self.device)
+        self.observation_size = int(self.spec["observation_size"])
+        self.action_size = int(self.spec["action_size"])
+
+    def __call__(self, obs: torch.Tensor, generator: torch.Generator | None = None):
+        """Actions for (N, obs) observations: the mean (generator None) or sampled, clipped to
+        the action bounds."""
+        with torch.inference_mode():
+            mean = self.actor(_obs(obs.to(self.device, torch.float32)))
+            if generator is not None:
+                self.actor.distribution.update(mean)
+                std = self.actor.distribution.std.expand_as(mean)
+                mean = torch.normal(mean, std, generator=generator)
+        return mean.clamp(self.low, self.high)
+
+    def state_dict(self) -> dict:
+        """The weights on the CPU (a checkpoint keeps the snapshots waiting for evaluation)."""
+        return {k: v.cpu() for k, v in self.actor.state_dict().items()}
+
+
 class SavedPolicy:
     """A saved rsl-ppo policy on the CPU: (N, obs) numpy -> (N, act) actions in [-1, 1]."""
 
     def __init__(self, path):
         path = Path(path)
         with zipfile.ZipFile(path) as z:
-            self.spec = json.loads(z.read(POLICY_MEMBERS[0]))
+            spec = json.loads(z.read(POLICY_MEMBERS[0]))
             weights = torch.load(io.BytesIO(z.read(POLICY_MEMBERS[1])), weights_only=True)
-        self.actor = _models(self.spec, 1, "cpu")[0]
-        self.actor.load_state_dict(weights)
-        self.actor.eval()
-        self.observation_size = int(self.spec["observation_size"])
-        self.action_size = int(self.spec["action_size"])
+        self.snapshot = PolicySnapshot(spec, _actor(spec, weights, "cpu"), -1.0, 1.0)
+        self.spec = self.snapshot.spec
+        self.observation_size = self.snapshot.observation_size
+        self.action_size = self.snapshot.action_size
 
     def __call__(self, obs, deterministic: bool = True):
-        x = torch.as_tensor(obs, dtype=torch.float32)
-        with torch.inference_mode():
-            actions = self.actor(_obs(x), stochastic_output=not deterministic)
-        return actions.clamp(-1.0, 1.0).numpy()
+        if deterministic:
+            return self.snapshot(torch.as_tensor(obs)).numpy()
+        with torch.inference_mode():  # sampled from the global generator, as any torch policy
+            x = _obs(torch.as_tensor(obs, dtype=torch.float32))
+            return self.snapshot.actor(x, stochastic_output=True).clamp(-1.0, 1.0).numpy()

@@ -37,12 +37,11 @@ from acl3d.training.config import TrainConfig, fixed_settings, student_params, u
 from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
 from acl3d.training.torch_student import rsl_ppo
+from acl3d.training.torch_student.eval_queue import EvaluationQueue, Pending
 from acl3d.training.torch_student.evaluation import ManyWorldEvaluator, WorldEvaluator
 from acl3d.training.torch_student.phase_times import PhaseTimes
 
 EPISODE_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
-EVAL_COLUMNS = ("step", "episodes", "mastered_pct", "mean_return", "std_return", "mean_length",
-                "n_tasks", "wall_time_s")  # fmt: skip
 
 
 class _Curriculum:
@@ -95,6 +94,7 @@ class TorchRun:
         self.curriculum = _Curriculum(self.controller, self.times)
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
         self.steps: int | None = None  # the steps trained, once provenance.json has its segment
+        self.pending: list[Pending] = []  # evaluations a checkpoint left waiting
 
     def device_name(self) -> str:
         """The device the student and worlds run on, with the GPU's model (runs on two GPU models
@@ -116,7 +116,9 @@ class TorchRun:
                 c.env, c.n_envs, self.device, curriculum=self.curriculum, body=c.body,
                 **c.env_kwargs,
             )  # fmt: skip
-            self.evaluator = ManyWorldEvaluator(c, self.controller.test_tasks(), self.device)
+            self.evaluator = ManyWorldEvaluator(
+                c, self.controller.test_tasks(), self.device, c.effective_eval_together
+            )
         else:
             self.env = CpuTensorVectorEnv(
                 c.env, c.n_envs, curriculum_sync=self.curriculum, body=c.body, **c.env_kwargs
@@ -138,6 +140,9 @@ class TorchRun:
     def _restore(self, folder: Path) -> tuple[torch.Tensor, int]:
         state = torch.load(folder / "student.pt", weights_only=False)
         self.student.load_state_dict(state["student"])
+        self.pending = [
+            Pending.from_state(p, self.student) for p in state.get("pending_evaluations", [])
+        ]
         runtime = load_state(folder / "runtime")
         self.controller.load_state_dict(load_state(folder / "controller"))
         self.env.set_state(runtime["env"])
@@ -165,8 +170,11 @@ class TorchRun:
                 run.remove_temp_files()
                 run.restart_from(self.resume_from)
                 run.update_config(c.to_dict(), **sections)
-                for path in (run.evals_csv, run.evals_tasks_csv, run.episodes_csv):
-                    truncate_csv(path, "step", steps)
+                truncate_csv(run.episodes_csv, "step", steps)
+                # evaluations still waiting at the checkpoint are played again
+                played = min([p.step - 1 for p in self.pending], default=steps)
+                for path in (run.evals_csv, run.evals_tasks_csv):
+                    truncate_csv(path, "step", played)
             run.set_status("running", pid=os.getpid())
             event = "start" if self.resume_from is None else "resume"
             provenance.record(run.path, event, steps, self.device_name())
@@ -179,12 +187,10 @@ class TorchRun:
     def _loop(self, obs: torch.Tensor, steps: int, target: int) -> int:
         c, n = self.config, self.config.n_envs
         self.episodes = CsvLog(self.run.episodes_csv, [*EPISODE_COLUMNS, *self.task_names])
-        self.evals = CsvLog(self.run.evals_csv, list(EVAL_COLUMNS))
-        self.eval_tasks = CsvLog(
-            self.run.evals_tasks_csv,
-            ["step", "task_index", "return", "length", "success", *self.task_names],
-        )
         self.tb = _writer(self.run.tb / "train_1") if c.tensorboard else None
+        self.evaluations = EvaluationQueue(
+            self.evaluator, self.run, self.task_names, self.controller, c, self.tb, self.pending
+        )
         every_eval, every_ckpt = c.effective_eval_every, c.effective_checkpoint_every
         next_eval, next_ckpt = _next(steps, every_eval), _next(steps, every_ckpt)
         last_eval = last_ckpt = -1
@@ -205,7 +211,8 @@ class TorchRun:
             self._log_update(steps, losses, collect, time.perf_counter() - tick)
             if steps >= next_eval:
                 with times.phase("evaluate"):
-                    self._evaluate(steps)
+                    self._freeze_policy(steps)
+                    self.evaluations.play(at_least=c.effective_eval_together)
                 last_eval, next_eval = steps, _next(steps, every_eval)
             with times.phase("records"):
                 self._log_episodes(steps)
@@ -214,7 +221,8 @@ class TorchRun:
                     last_ckpt, next_ckpt = steps, _next(steps, every_ckpt)
         with times.phase("evaluate"):
             if last_eval != steps:
-                self._evaluate(steps)
+                self._freeze_policy(steps)
+            self.evaluations.play(at_least=1)
         with times.phase("records"):
             self._log_episodes(steps)
             if last_ckpt != steps:
@@ -256,39 +264,22 @@ class TorchRun:
             self.tb.add_scalar("curriculum/success_rate", successes.mean(), steps)
             self.tb.add_scalar("curriculum/episodes", self.curriculum.episodes_done, steps)
 
-    def _evaluate(self, steps: int) -> None:
-        c = self.config
-        if c.verbose:
-            print(f"[acl3d] step {steps}: evaluating on {len(self.evaluator.tasks)} test tasks "
-                  f"({self.evaluator.num_worlds} worlds)...", flush=True)  # fmt: skip
-        result = self.evaluator.run(lambda obs: self.student.policy(obs, not c.eval_stochastic))
-        s = result.summary()
-        self.evals.write(
-            [steps, self.curriculum.episodes_done, f"{s['mastered_pct']:.4g}",
-             f"{s['mean_return']:.6g}", f"{s['std_return']:.6g}", f"{s['mean_length']:.6g}",
-             s["n_tasks"], f"{self.wall_time():.1f}"]
-        )  # fmt: skip
-        rows = []
-        for i, (task, ret, length, ok) in enumerate(
-            zip(result.tasks, result.returns, result.lengths, result.successes)
-        ):
-            self.controller.record_test_episode(task, ret, length, bool(ok))
-            rows.append([steps, i, f"{ret:.6g}", int(length), int(ok), *(f"{v:.6g}" for v in task)])
-        self.eval_tasks.write_rows(rows)
-        if self.tb is not None:
-            self.tb.add_scalar("eval/mastered_pct", s["mastered_pct"], steps)
-            self.tb.add_scalar("eval/mean_return", s["mean_return"], steps)
-        if c.verbose:
-            print(f"[acl3d] step {steps}: {s['mastered_pct']:.1f}% mastered, mean return "
-                  f"{s['mean_return']:.1f}", flush=True)  # fmt: skip
+    def _freeze_policy(self, steps: int) -> None:
+        """The evaluation of step `steps`: its policy waits for a pass (`eval_together`)."""
+        snapshot = self.student.snapshot()
+        self.evaluations.add(
+            Pending(steps, self.curriculum.episodes_done, self.wall_time(), snapshot)
+        )
 
     def _checkpoint(self, steps: int, obs: torch.Tensor) -> None:
         def write(folder: Path) -> None:
             self.student.save_policy(folder / "model.zip")
             cuda = torch.cuda.get_rng_state_all() if torch.cuda.is_initialized() else None
             torch.save(
-                {"student": self.student.state_dict(), "cuda_rng": cuda}, folder / "student.pt"
-            )
+                {"student": self.student.state_dict(), "cuda_rng": cuda,
+                 "pending_evaluations": self.evaluations.state()},
+                folder / "student.pt",
+            )  # fmt: skip
             runtime = {"env": self.env.get_state(), "last_obs": obs.cpu().numpy()}
             save_state(folder / "runtime", runtime)
             save_state(folder / "controller", self.controller.state_dict())
