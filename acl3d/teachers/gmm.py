@@ -36,11 +36,19 @@ REFIT_WORKERS = max(1, min(4, (os.cpu_count() or 2) - 1))
 
 
 def _refits() -> ProcessPoolExecutor:
+    """The refit workers, started on first use: each imports this module while the run sets up
+    (a worker's start, about a second, would otherwise stall the first refits' episodes)."""
     global _REFITS
     if _REFITS is None:
         context = multiprocessing.get_context("forkserver")
         _REFITS = ProcessPoolExecutor(max_workers=REFIT_WORKERS, mp_context=context)
+        for _ in range(REFIT_WORKERS):
+            _REFITS.submit(_ready)
     return _REFITS
+
+
+def _ready() -> None:
+    """A worker's first task: importing this module is the start-up to get done early."""
 
 
 def pick_proportional(rng: np.random.Generator, weights: np.ndarray) -> int:
@@ -136,6 +144,8 @@ class GMMTeacherBase(Teacher):
         )
         self.fit_rate = int(fit_rate)
         self.fit_lag = validation.integer("fit_lag", fit_lag, 0, MAX_FIT_LAG)
+        if self.fit_lag:
+            _refits()
         self._in_flight: list[tuple[dict[str, Any], Future]] = []  # (job, its fit), fit order
         self.random_task_ratio = float(random_task_ratio)
         self.gmm_fitness_func = gmm_fitness_func
