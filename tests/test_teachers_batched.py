@@ -3,6 +3,8 @@ mixture teachers' background refits applied at a fixed episode (runs stay reprod
 
 from __future__ import annotations
 
+import multiprocessing
+
 import numpy as np
 import pytest
 from test_teachers_classic import FAST, NAMES, SPACES, _reward
@@ -150,3 +152,21 @@ def test_a_fit_lag_beyond_fit_rate_keeps_several_refits_in_flight_and_resumes_ex
 def test_fit_lag_is_checked():
     with pytest.raises(ValueError, match="fit_lag"):
         make("alp-gmm", SPACE, seed=0, fit_rate=40, fit_lag=-1)
+
+
+def _teach_with_refits() -> None:
+    """A process's whole life: a teacher whose refits run in worker processes."""
+    teacher = make("alp-gmm", SPACE, seed=1, **{**GMM_FAST, "fit_lag": 5})
+    drive_batched(teacher, 6, 9)  # 54 episodes: the refit of episode 40 applied at 45
+    assert teacher.bk["episodes"] == [45]
+
+
+def test_a_process_started_by_multiprocessing_ends_after_its_refits():
+    """A campaign attempt is such a process: it hung at exit, joining the refit workers before
+    anything told them to stop."""
+    process = multiprocessing.get_context("spawn").Process(target=_teach_with_refits)
+    process.start()
+    process.join(60)
+    if process.exitcode is None:
+        process.kill()
+    assert process.exitcode == 0

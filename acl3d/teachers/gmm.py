@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import multiprocessing
+import multiprocessing.util
 import os
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
@@ -36,19 +37,29 @@ REFIT_WORKERS = max(1, min(4, (os.cpu_count() or 2) - 1))
 
 
 def _refits() -> ProcessPoolExecutor:
-    """The refit workers, started on first use: each imports this module while the run sets up
-    (a worker's start, about a second, would otherwise stall the first refits' episodes)."""
+    """The refit workers, started on first use: each imports this module while the run goes on
+    setting up (a worker's start, about a second, would otherwise stall the first refits)."""
     global _REFITS
     if _REFITS is None:
         context = multiprocessing.get_context("forkserver")
         _REFITS = ProcessPoolExecutor(max_workers=REFIT_WORKERS, mp_context=context)
         for _ in range(REFIT_WORKERS):
             _REFITS.submit(_ready)
+        # a process that multiprocessing started (a campaign's attempt) joins its children at
+        # exit before the executor's own exit hook would stop them, and hung: stop them first
+        multiprocessing.util.Finalize(None, _stop_refits, exitpriority=100)
     return _REFITS
 
 
 def _ready() -> None:
     """A worker's first task: importing this module is the start-up to get done early."""
+
+
+def _stop_refits() -> None:
+    global _REFITS
+    if _REFITS is not None:
+        _REFITS.shutdown(wait=True, cancel_futures=True)
+        _REFITS = None
 
 
 def pick_proportional(rng: np.random.Generator, weights: np.ndarray) -> int:
