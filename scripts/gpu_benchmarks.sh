@@ -11,6 +11,7 @@
 #                                          # classic_bipedal in water, climbing_profile_chimpanzee)
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
+#                                          # (10 evaluations, played side by side at the end)
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
 #   scripts/gpu_benchmarks.sh learn OUT [SEEDS]
 #                                          # stump-v2's Random and ALP-GMM cells, SEEDS seeds
@@ -58,7 +59,7 @@ env)
   ;;
 speed)
   steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}
-  train alp-gmm 0 "$steps" "$worlds" $((steps / 8)) "$lag" --out "$out/runs/speed-$worlds" \
+  train alp-gmm 0 "$steps" "$worlds" $((steps / 10)) "$lag" --out "$out/runs/speed-$worlds" \
     >"$out/speed-$worlds.txt" 2>&1
   tail -n 3 "$out/speed-$worlds.txt"
   ;;
