@@ -75,7 +75,7 @@ def test_v2_seeds_budget_and_path(name):
     for run in runs:
         assert run.options["student"] == "rsl-ppo" and run.options["steps"] == 20_000_000
     path = {(r.options["device"], r.options["vec_env"], r.options["n_envs"]) for r in runs}
-    assert path == ({("cuda", "auto", 4096)} if name == "stump-v2" else {("cpu", "batched", 64)})
+    assert path == {("cuda", "auto", 4096)}
     spec = load_spec(name)
     assert "provisional" in spec.description and "not run yet" in spec.description
 
