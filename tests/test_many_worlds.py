@@ -171,6 +171,23 @@ def test_more_resets_than_start_worlds_are_done_in_parts():
         ManyWorldTracks(3, device="cpu", start_worlds=4)
 
 
+def test_a_reset_with_a_period_repeats_the_first_worlds_draws():
+    """Copies of one set of episodes (several policies evaluated side by side): worlds i and
+    i + period get what worlds 0..period-1 of a period-world simulation get from the seed."""
+    copies, alone = ManyWorldTracks(4, device="cpu"), ManyWorldTracks(2, device="cpu")
+    for env in (copies, alone):
+        env.tasks[:] = np.tile(env.task_space.to_vector({"stump_height": 1.0}), (env.num_envs, 1))
+        env.tasks[:, 1] = np.resize([1.0, 4.0], env.num_envs)  # two spacings per block
+    first, single = copies.reset(seed=3, period=2), alone.reset(seed=3)
+    assert torch.equal(first[:2], single) and torch.equal(first[2:], single)
+    terrain = copies.sim.terrain("terrain")
+    assert torch.equal(terrain[:2], terrain[2:]) and not torch.equal(terrain[0], terrain[1])
+    with pytest.raises(ValueError, match=r"period=5; valid: an integer in \[1, 4\]"):
+        copies.reset(seed=3, period=5)
+    with pytest.raises(ValueError, match="period=0; valid"):
+        copies.reset(seed=3, period=0)
+
+
 def test_without_autoreset_finished_worlds_play_on_until_reset():
     env = ManyWorldTracks(2, device="cpu", max_episode_steps=3, autoreset=False)
     env.reset(seed=8)
