@@ -62,9 +62,19 @@ class NearestNeighbourALP:
         return alp
 
     def compute_batch(self, tasks: np.ndarray, rewards: np.ndarray) -> np.ndarray:
-        """`compute` of M pairs in order, in a few array operations: each task's nearest earlier
-        task among the database and the batch's earlier tasks (the same neighbour as M calls,
-        but for exact distance ties, which continuous tasks do not make)."""
+        """`compute` of M pairs in order, in a few array operations per part of the batch that
+        no tree rebuild interrupts (the pair whose storing rebuilds the tree ends a part, so a
+        `max_size` drops old points exactly where M calls would drop them): each task's nearest
+        earlier task among the database and the part's earlier tasks (the same neighbour as M
+        calls, but for exact distance ties, which continuous tasks do not make)."""
+        alps, start = np.zeros(len(tasks)), 0
+        while start < len(tasks):
+            stop = min(len(tasks), start + self.tree_end + self.buffer_size - self.n)
+            alps[start:stop] = self._compute_part(tasks[start:stop], rewards[start:stop])
+            start = stop
+        return alps
+
+    def _compute_part(self, tasks: np.ndarray, rewards: np.ndarray) -> np.ndarray:
         m, alps = len(tasks), np.zeros(len(tasks))
         if m == 0:
             return alps
@@ -82,15 +92,30 @@ class NearestNeighbourALP:
             best_d = np.where(closer, d[np.arange(m), j], best_d)
             best_r = np.where(closer, self.rewards[self.tree_end + j], best_r)
         within = np.sqrt(((tasks[:, None, :] - tasks[None]) ** 2).sum(axis=2))
-        within[np.triu_indices(m)] = np.inf  # only the batch's earlier tasks
+        order = np.arange(m)
+        within[order[:, None] <= order] = np.inf  # only the batch's earlier tasks
         j = within.argmin(axis=1)
-        closer = within[np.arange(m), j] < best_d
+        closer = within[order, j] < best_d
         best_r = np.where(closer, rewards[j], best_r)
-        known = base + np.arange(m) > 5  # `compute` scores a pair once 6 are known
+        known = base + order > 5  # `compute` scores a pair once 6 are known
         alps[known] = np.abs(rewards - best_r)[known]
-        for task, reward in zip(tasks, rewards):
-            self._add(task, reward)
+        self._add_many(tasks, rewards)
         return alps
+
+    def _add_many(self, tasks: np.ndarray, rewards: np.ndarray) -> None:
+        """`_add` of each pair of a part in order: the points stored at once, the tree rebuilt
+        if the last one completes the buffer (no earlier one does: see `compute_batch`)."""
+        end = self.n + len(tasks)
+        if end > len(self.tasks):
+            grown = max(end, 2 * len(self.tasks))
+            self.tasks = np.concatenate(
+                [self.tasks, np.zeros((grown - len(self.tasks), self.tasks.shape[1]))]
+            )
+            self.rewards = np.concatenate([self.rewards, np.zeros(grown - len(self.rewards))])
+        self.tasks[self.n : end], self.rewards[self.n : end] = tasks, rewards
+        self.n = end
+        if self.n - self.tree_end >= self.buffer_size:
+            self._rebuild()
 
     def _add(self, task, reward) -> None:
         if self.n == len(self.tasks):
@@ -213,9 +238,6 @@ class ALPGMM(GMMTeacherBase):
         """The episodes' ALPs in one batched neighbour search, then their book-keeping in bulk
         between refit events (a fit or a refit's application, done at its own episode); equal
         to the episodes one by one."""
-        if self.alp_computer.max_size is not None:  # points may drop out inside the batch
-            super()._update_batch(tasks, returns, successes)
-            return
         units = ((tasks - self.mins) / self.span)[:, self.active]
         alps = self.alp_computer.compute_batch(units, returns.astype(np.float64)).tolist()
         rewards, j = returns.tolist(), 0
