@@ -236,6 +236,12 @@ def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
     assert episodes == (parts / "episodes.csv").read_text()
     evals = [line.split(",")[:6] for line in (whole / "evals.csv").read_text().splitlines()]
     assert evals == [line.split(",")[:6] for line in (parts / "evals.csv").read_text().splitlines()]
+    # `acl3d evaluate` plays the final policy on the worlds the run evaluated on
+    played = tmp_path / "played.csv"
+    assert main(["evaluate", str(whole), "--out", str(played)]) == 0
+    own = [row.split(",") for row in (whole / "evals_tasks.csv").read_text().splitlines()[1:]]
+    again = [row.split(",")[1:3] for row in played.read_text().splitlines()[1:]]
+    assert again == [row[2:4] for row in own if row[0] == "512"]
 
 
 def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():

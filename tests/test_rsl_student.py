@@ -129,6 +129,43 @@ def test_evaluations_played_together_survive_a_kill_after_a_checkpoint(reference
         validate(TrainConfig(student="ppo", eval_together=2), on_this_machine=False)
 
 
+def test_evaluate_reproduces_the_runs_own_last_evaluation(reference, tmp_path, capsys):
+    """`acl3d evaluate RUN` plays the policy file as the run evaluated it; a checkpoint's
+    policy and a bare policy file (with --env) evaluate too."""
+    out = tmp_path / "episodes.csv"
+    assert main(["evaluate", str(reference), "--out", str(out)]) == 0
+    own = [r.split(",") for r in (reference / "evals_tasks.csv").read_text().splitlines()[1:]]
+    last = [row[2:4] for row in own if row[0] == str(STEPS)]
+    assert [r.split(",")[1:3] for r in out.read_text().splitlines()[1:]] == last
+    printed = capsys.readouterr().out
+    assert f"(step {STEPS})" in printed and f"own evaluation at step {STEPS}" in printed
+    checkpoint = reference / "checkpoints" / "step_000000000640" / "model.zip"
+    assert (
+        main(["evaluate", str(checkpoint), "--env", "stump-tracks", "--nb-test-episodes", "4"]) == 0
+    )
+    assert "(step 640)" in capsys.readouterr().out
+
+
+def _episodes_until(run: Path, step: int | None) -> list[str]:
+    rows = (run / "episodes.csv").read_text().splitlines()[1:]
+    return [row for row in rows if step is None or int(row.split(",")[0]) <= step]
+
+
+def test_a_forgetting_student_starts_afresh_and_resumes_exactly(reference, tmp_path):
+    """`--reset-student-every 384`: the run is the reference's until the reset, another after
+    it, and a run stopped at 512 steps and resumed is the uninterrupted one."""
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    reset = [*COMMON, "--reset-student-every", "384"]
+    assert main(["train", *reset, "--out", str(whole)]) == 0
+    shorter = [*reset, "--out", str(parts)]
+    shorter[shorter.index("--steps") + 1] = "512"
+    assert main(["train", *shorter]) == 0
+    assert main(["train", "--resume", str(parts), "--steps", str(STEPS), "--quiet"]) == 0
+    assert _episodes_until(whole, None) == _episodes_until(parts, None)
+    assert _episodes_until(whole, 384) == _episodes_until(reference, 384)
+    assert _episodes_until(whole, None) != _episodes_until(reference, None)
+
+
 def test_presets_and_checks():
     assert students.is_on_policy("rsl-ppo")
     fast = students.hyperparameters("rsl-ppo", "fast", 16)

@@ -2,7 +2,10 @@
 
 On a run directory the defaults reproduce the run's own last evaluation exactly: its test set,
 its evaluation seed, its number of evaluation envs and its deterministic/stochastic choice
-(`--seed`, `--n-envs`, `--test-set`, `--stochastic/--deterministic` vary them).
+(`--seed`, `--n-envs`, `--test-set`, `--stochastic/--deterministic` vary them). A torch-native
+student's policy file (`rsl-ppo`) is played as its run evaluated: one world per test task, task
+k seeded seed + k, on the CPU batched env, or for a run trained on the many-world simulation on
+that simulation, on the run's device (Warp's CPU device where that GPU is missing).
 """
 
 from __future__ import annotations
@@ -28,7 +31,9 @@ BARE_ZIP_ENVS = 2
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "target", metavar="RUN_DIR|MODEL.zip", help="a run directory or an SB3 model zip"
+        "target",
+        metavar="RUN_DIR|MODEL.zip",
+        help="a run directory, an SB3 model zip or a torch-native student's policy file",
     )
     add_test_set_arguments(
         p, "the run's test set, else the environment's default set", TrainConfig().nb_test_episodes
@@ -39,8 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--n-envs",
         type=int,
-        help=f"parallel evaluation environments (default: the run's, else {BARE_ZIP_ENVS}); the "
-        "split of test tasks over envs changes the environment noise each task sees",
+        help=f"parallel evaluation environments (default: the run's, else {BARE_ZIP_ENVS}; a "
+        "policy file: one per test task); for an SB3 model the split of test tasks over envs "
+        "changes the environment noise each task sees",
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
@@ -80,35 +86,46 @@ class Target:
     n_envs: int
     deterministic: bool
     run_dir: Path | None = None
+    policy_file: bool = False  # a torch-native student's (else an SB3 zip)
+    many_worlds_device: str | None = None  # where a policy file's run evaluated on many worlds
 
 
 def resolve_target(target, env: str | None, body: str | None) -> Target:
     """The model, env and the run's own evaluation settings for a run dir or a bare zip."""
+    from acl3d.envs.batched import MAX_ENVS
     from acl3d.training import TrainConfig
+    from acl3d.training.config import uses_many_worlds
     from acl3d.training.run_dir import RunDir
+    from acl3d.training.torch_student.policy_file import is_policy_file
 
     path = Path(target)
     if path.is_dir():
         run = RunDir(path)
         config = TrainConfig.recorded(run.read_section("config"), str(run.config_yaml))
         run.read_section("resolved")  # as resume: a config.yaml cut short is refused
+        model = run.best_model()
+        policy = is_policy_file(model)
         return Target(
-            run.best_model(),
+            model,
             env or config.env,
             body or config.body,
             dict(config.env_kwargs),
             run.test_tasks(),
             config.eval_seed,
-            config.effective_eval_envs,
+            (config.eval_envs or MAX_ENVS) if policy else config.effective_eval_envs,
             not config.eval_stochastic,
             run.path,
+            policy,
+            _many_worlds_device(config) if policy and uses_many_worlds(config) else None,
         )
     if path.suffix != ".zip" or not path.exists():
         raise ValueError(f"{target!r} is neither a run directory nor an existing model .zip")
     if env is None:
         raise ValueError("--env is required when evaluating a bare model zip")
+    policy = is_policy_file(path)
+    n_envs = MAX_ENVS if policy else BARE_ZIP_ENVS
     return Target(
-        path, env, body or "classic_bipedal", {}, None, BARE_ZIP_SEED, BARE_ZIP_ENVS, True
+        path, env, body or "classic_bipedal", {}, None, BARE_ZIP_SEED, n_envs, True, None, policy
     )
 
 
@@ -136,13 +153,65 @@ def check_normalization(model: Path, raw_observations: bool) -> None:
     )
 
 
-def model_step(path: Path) -> int | None:
-    """The training step an SB3 zip was saved at (from its own metadata)."""
+def model_step(t: Target) -> int | None:
+    """The training step the model was saved at: an SB3 zip's own metadata; a policy file's
+    checkpoint folder (step_N), or for a run's final model the steps its status records."""
+    from acl3d.run_format.checkpoints import checkpoint_step
+    from acl3d.run_format.status import read_status
+
+    if not t.policy_file:
+        try:
+            with zipfile.ZipFile(t.model) as z:
+                return int(json.loads(z.read("data"))["num_timesteps"])
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+            return None
+    step = checkpoint_step(t.model.parent.name)
+    if step is None and t.run_dir is not None and t.model.parent == t.run_dir:
+        status = read_status(t.run_dir)
+        step = status.fields.get("steps") if status is not None else None
+    return None if step is None else int(step)
+
+
+def _many_worlds_device(config) -> str:
+    """The run's device for its many worlds, or Warp's CPU device where that GPU is missing."""
+    import torch
+
+    device = "cpu" if config.device == "auto" else str(config.device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        print(f"acl3d evaluate: the run evaluated on {device}, which this machine lacks: playing "
+              "its worlds on Warp's CPU device (slower; float results may differ)", file=sys.stderr)  # fmt: skip
+        return "cpu"
+    return device
+
+
+def evaluate_policy_file(
+    t: Target, tasks, n_envs: int, deterministic: bool, seed: int, episodes: int
+):
+    """A torch-native student's policy file, played as its run's evaluations play (the test set
+    repeated `episodes` times)."""
+    from acl3d.training.torch_student.evaluation import ManyWorldEvaluator, WorldEvaluator
+    from acl3d.training.torch_student.rsl_ppo import PolicySnapshot, SavedPolicy
+
+    policy = SavedPolicy(t.model)
+    repeated = np.repeat(np.atleast_2d(tasks), episodes, axis=0)
+    where = (t.env, t.body, t.env_kwargs, repeated, seed, n_envs)
+    snapshot = policy.snapshot
+    if t.many_worlds_device is None:
+        evaluator = WorldEvaluator(*where)
+    else:
+        evaluator = ManyWorldEvaluator(*where, t.many_worlds_device)
+        actor = snapshot.actor.to(evaluator.device)
+        snapshot = PolicySnapshot(policy.spec, actor, snapshot.low, snapshot.high)
     try:
-        with zipfile.ZipFile(path) as z:
-            return int(json.loads(z.read("data"))["num_timesteps"])
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        return None
+        if evaluator.observation_shape != (policy.observation_size,):
+            raise ValueError(
+                f"model {str(t.model)!r} expects observations of shape "
+                f"{(policy.observation_size,)}; env {t.env!r} with body {t.body!r} gives "
+                f"{evaluator.observation_shape}"
+            )
+        return evaluator.run([snapshot], stochastic=not deterministic)[0]
+    finally:
+        evaluator.close()
 
 
 def run_evaluation_at(run_dir: Path, step: int | None) -> dict | None:
@@ -197,11 +266,12 @@ def run(args) -> int:
     from acl3d.teachers import test_sets
     from acl3d.training.checkpoint import MODEL_MEMBERS
     from acl3d.training.evaluation import evaluate_saved_model
+    from acl3d.training.torch_student.policy_file import POLICY_MEMBERS
     from acl3d.training.workers import make_env
 
     check_args(args)
     t = resolve_target(args.target, args.env, args.body)
-    check_zip(t.model, MODEL_MEMBERS)
+    check_zip(t.model, POLICY_MEMBERS if t.policy_file else MODEL_MEMBERS)
     probe = make_env(t.env, t.body, t.env_kwargs)  # also checks the env and body names
     try:
         space = probe.unwrapped.task_space
@@ -219,25 +289,31 @@ def run(args) -> int:
     check_episodes(args.episodes, len(tasks))
     seed = t.seed if args.seed is None else args.seed
     n_envs = t.n_envs if args.n_envs is None else args.n_envs
+    if t.policy_file:  # one world per test episode, up to n_envs
+        n_envs = min(n_envs, len(tasks) * args.episodes)
     deterministic = t.deterministic if args.deterministic is None else args.deterministic
-    check_normalization(t.model, args.raw_observations)
-    step = model_step(t.model)
+    if not t.policy_file:  # a policy file holds its observation normaliser
+        check_normalization(t.model, args.raw_observations)
+    step = model_step(t)
     print(
         f"evaluating {t.model} (step {step}) on {test_set} ({len(tasks)} tasks x {args.episodes}), "
         f"seed {seed}, {n_envs} envs, {'deterministic' if deterministic else 'stochastic'} actions"
     )
     names = space.flat_names() if space.dim == tasks.shape[1] else range(tasks.shape[1])
-    result = evaluate_saved_model(
-        t.model,
-        t.env,
-        t.body,
-        tasks,
-        env_kwargs=t.env_kwargs,
-        n_envs=n_envs,
-        deterministic=deterministic,
-        seed=seed,
-        episodes_per_task=args.episodes,
-    )
+    if t.policy_file:
+        result = evaluate_policy_file(t, tasks, n_envs, deterministic, seed, args.episodes)
+    else:
+        result = evaluate_saved_model(
+            t.model,
+            t.env,
+            t.body,
+            tasks,
+            env_kwargs=t.env_kwargs,
+            n_envs=n_envs,
+            deterministic=deterministic,
+            seed=seed,
+            episodes_per_task=args.episodes,
+        )
     if args.out:
         with open(args.out, "w", newline="") as f:
             writer = csv.writer(f)

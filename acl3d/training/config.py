@@ -168,6 +168,7 @@ class TrainConfig:
         `out` may be missing (exported runs drop it)."""
         if not isinstance(values, dict):
             raise ValueError(f"{where}: its 'config' section is not a mapping")
+        values = {**RECORDED_BEFORE_THEY_EXISTED, **values}
         missing = [
             f.name for f in dataclasses.fields(cls) if f.name not in values and f.name != "out"
         ]
@@ -182,6 +183,9 @@ class TrainConfig:
                 raise ValueError(f"{where}: config {check.fail(name, values[name], 'a mapping')}")
         return cls.from_dict(values)
 
+
+# Options added after runs were recorded without them, with the value those runs had.
+RECORDED_BEFORE_THEY_EXISTED = {"eval_together": None}
 
 # Options a resumed run may change (runtime settings, and `steps` to extend it). Not the vec env
 # kind or envs per worker: an in-process batched env pulls each task at its reset, worker

@@ -75,16 +75,16 @@ class ChunkedEvaluator(ABC):
 
 
 class WorldEvaluator(ChunkedEvaluator):
-    """Evaluates snapshots one after another on the CPU batched env, with the run's evaluation
-    seed (the same every pass)."""
+    """Evaluates snapshots one after another on the CPU batched env of `env` (`body`,
+    `env_kwargs`) with `seed` (a run's evaluation seed: the same every pass), `eval_envs` worlds
+    at a time (None: one per test task, up to `MAX_ENVS`)."""
 
-    def __init__(self, config, tasks):
+    def __init__(self, env: str, body: str, env_kwargs: dict, tasks, seed: int, eval_envs=None):
         self.tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float32))
-        self.seed, self.copies, self.device = config.eval_seed, 1, torch.device("cpu")
-        self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
-        self.vector = BatchedVectorEnv(
-            config.env, self.num_worlds, body=config.body, **config.env_kwargs
-        )
+        self.seed, self.copies, self.device = int(seed), 1, torch.device("cpu")
+        self.num_worlds = int(min(len(self.tasks), eval_envs or MAX_ENVS, MAX_ENVS))
+        self.vector = BatchedVectorEnv(env, self.num_worlds, body=body, **env_kwargs)
+        self.observation_shape = self.vector.single_observation_space.shape
         self.success_return = float(self.vector.envs[0].curriculum_profile.success_return)
 
     def _play(self, policies, generators, chunk: np.ndarray, outcomes) -> None:
@@ -111,19 +111,20 @@ class WorldEvaluator(ChunkedEvaluator):
 
 
 class ManyWorldEvaluator(ChunkedEvaluator):
-    """`WorldEvaluator` on the many-world simulation (MuJoCo Warp): `copies` blocks of
+    """`WorldEvaluator` on the many-world simulation (MuJoCo Warp, on `device`): `copies` blocks of
     `num_worlds` worlds on the run's device, test task k world k of each block, snapshot b
     playing block b; every block draws the same terrain from the evaluation seed, so every pass
     plays the same tracks."""
 
-    def __init__(self, config, tasks, device, copies: int = 1):
+    def __init__(self, env: str, body: str, env_kwargs: dict, tasks, seed: int, eval_envs,
+                 device, copies: int = 1):  # fmt: skip
         self.tasks = np.atleast_2d(np.asarray(tasks, dtype=np.float64))
-        self.seed, self.copies, self.device = config.eval_seed, int(copies), torch.device(device)
-        self.num_worlds = int(min(len(self.tasks), config.eval_envs or MAX_ENVS, MAX_ENVS))
+        self.seed, self.copies, self.device = int(seed), int(copies), torch.device(device)
+        self.num_worlds = int(min(len(self.tasks), eval_envs or MAX_ENVS, MAX_ENVS))
         self.worlds = many_worlds(
-            config.env, self.num_worlds * self.copies, device, autoreset=False, body=config.body,
-            **config.env_kwargs,
-        )  # fmt: skip
+            env, self.num_worlds * self.copies, device, autoreset=False, body=body, **env_kwargs
+        )
+        self.observation_shape = (self.worlds.observation_size,)
         self.success_return = float(self.worlds.curriculum_profile.success_return)
 
     def _play(self, policies, generators, chunk: np.ndarray, outcomes) -> None:

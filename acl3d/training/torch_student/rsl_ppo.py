@@ -107,10 +107,26 @@ class RslPPO:
             "action_size": int(action_size),
             **{k: params[k] for k in ("hidden_dims", "activation", "init_noise_std")},
         }
-        actor, critic, obs = _models(self.spec, num_envs, self.device)
-        storage = RolloutStorage(
-            "rl", num_envs, params["num_steps_per_env"], obs, [action_size], str(self.device)
+        self.num_envs = int(num_envs)
+        self.reinitialise()
+        self.steps_per_env = int(params["num_steps_per_env"])
+        self.low, self.high = action_low.to(self.device), action_high.to(self.device)
+        self.rewards = (
+            RewardNormaliser(num_envs, params["gamma"], self.device)
+            if params["normalize_rewards"]
+            else None
         )
+
+    def reinitialise(self) -> None:
+        """Fresh networks (their observation normalisers too), optimiser, learning rate and
+        rollout storage, drawn from the global generator: a new student, or a forgetting one
+        (`reset_student_every`). The reward normaliser, the env side's statistics, stays."""
+        params = self.params
+        actor, critic, obs = _models(self.spec, self.num_envs, self.device)
+        storage = RolloutStorage(
+            "rl", self.num_envs, params["num_steps_per_env"], obs, [self.spec["action_size"]],
+            str(self.device),
+        )  # fmt: skip
         keys = ("num_learning_epochs", "num_mini_batches", "clip_param", "gamma", "lam",
                 "value_loss_coef", "entropy_coef", "learning_rate", "max_grad_norm",
                 "use_clipped_value_loss", "schedule", "desired_kl")  # fmt: skip
@@ -119,13 +135,6 @@ class RslPPO:
         )
         _foreach(self.alg.optimizer)
         self.alg.train_mode()
-        self.steps_per_env = int(params["num_steps_per_env"])
-        self.low, self.high = action_low.to(self.device), action_high.to(self.device)
-        self.rewards = (
-            RewardNormaliser(num_envs, params["gamma"], self.device)
-            if params["normalize_rewards"]
-            else None
-        )
 
     # ------------------------------------------------------------------ the rollout
     def act(self, obs: torch.Tensor) -> torch.Tensor:

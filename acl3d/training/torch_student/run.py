@@ -117,13 +117,16 @@ class TorchRun:
                 **c.env_kwargs,
             )  # fmt: skip
             self.evaluator = ManyWorldEvaluator(
-                c, self.controller.test_tasks(), self.device, c.effective_eval_together
-            )
+                c.env, c.body, c.env_kwargs, self.controller.test_tasks(), c.eval_seed,
+                c.eval_envs, self.device, c.effective_eval_together,
+            )  # fmt: skip
         else:
             self.env = CpuTensorVectorEnv(
                 c.env, c.n_envs, curriculum_sync=self.curriculum, body=c.body, **c.env_kwargs
             )
-            self.evaluator = WorldEvaluator(c, self.controller.test_tasks())
+            self.evaluator = WorldEvaluator(
+                c.env, c.body, c.env_kwargs, self.controller.test_tasks(), c.eval_seed, c.eval_envs
+            )
         self.student = rsl_ppo.RslPPO(
             self.params, self.env.observation_size, self.env.action_size, c.n_envs,
             self.device, self.env.action_low, self.env.action_high,
@@ -193,6 +196,8 @@ class TorchRun:
         )
         every_eval, every_ckpt = c.effective_eval_every, c.effective_checkpoint_every
         next_eval, next_ckpt = _next(steps, every_eval), _next(steps, every_ckpt)
+        every_reset = c.reset_student_every
+        next_reset = _next(steps, every_reset) if every_reset else None
         last_eval = last_ckpt = -1
         times = self.times
         while steps < target:
@@ -208,6 +213,11 @@ class TorchRun:
             collect = time.perf_counter() - tick
             with times.phase("update"):
                 losses = self.student.update(obs)
+                if next_reset is not None and steps >= next_reset:  # a forgetting student
+                    self.student.reinitialise()
+                    next_reset = _next(steps, every_reset)
+                    if self.tb is not None:
+                        self.tb.add_scalar("curriculum/student_resets", steps // every_reset, steps)
             self._log_update(steps, losses, collect, time.perf_counter() - tick)
             if steps >= next_eval:
                 with times.phase("evaluate"):
