@@ -62,6 +62,19 @@ def test_evaluate_refuses_a_torn_config_as_resume_does(tmp_path, capsys):
     one_line_error(capsys, "config.yaml lacks config field(s)", "eval_stochastic")
 
 
+def test_a_config_recorded_before_an_option_existed_still_loads():
+    """Runs written before `eval_together` existed lack it (they played every evaluation when
+    due); any other missing field is still a torn file."""
+    from acl3d.training.config import TrainConfig
+
+    recorded = TrainConfig(eval_every=1000).to_dict()
+    del recorded["eval_together"]
+    assert TrainConfig.recorded(recorded, "old.yaml").eval_together is None
+    del recorded["eval_every"]
+    with pytest.raises(ValueError, match=r"old.yaml lacks config field\(s\) \['eval_every'\]"):
+        TrainConfig.recorded(recorded, "old.yaml")
+
+
 # ---------------------------------------------------------------------- 4: resource bounds
 def test_test_set_file_over_the_cap_and_malformed_json_name_file_and_option(tmp_path, capsys):
     space = gym.make("acl3d/StumpTracks-v0").unwrapped.task_space
