@@ -244,6 +244,31 @@ def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
     assert again == [row[2:4] for row in own if row[0] == "512"]
 
 
+def test_policies_evaluated_side_by_side_score_as_each_alone():
+    """Two policies, sampled actions, a test set in two chunks: each scores what it scores
+    alone, though one block's episodes outlast the other's."""
+    pytest.importorskip("rsl_rl")
+    from acl3d.training.torch_student import rsl_ppo
+    from acl3d.training.torch_student.evaluation import ManyWorldEvaluator
+
+    tasks = np.array([[0.0, 4.0], [1.0, 3.0], [2.0, 5.0], [0.5, 2.0]])
+    where = ("stump-tracks", "classic_bipedal", {"max_episode_steps": 300}, tasks, 7, 2, "cpu")
+    together, alone = ManyWorldEvaluator(*where, copies=2), ManyWorldEvaluator(*where, copies=1)
+    spec = {"student": "rsl-ppo", "observation_size": alone.observation_shape[0],
+            "action_size": 4, "hidden_dims": [16], "activation": "elu", "init_noise_std": 1.0}  # fmt: skip
+    torch.manual_seed(0)
+    actors = [rsl_ppo._models(spec, 1, "cpu")[0] for _ in range(2)]
+    with torch.no_grad():
+        for weight in actors[1].mlp.parameters():
+            weight.zero_()  # its episodes last other lengths than the first one's
+    policies = [rsl_ppo.PolicySnapshot(spec, actor, -1.0, 1.0) for actor in actors]
+    side_by_side = together.run(policies, stochastic=True)
+    for policy, result in zip(policies, side_by_side):
+        (own,) = alone.run([policy], stochastic=True)
+        np.testing.assert_array_equal(result.returns, own.returns)
+        np.testing.assert_array_equal(result.lengths, own.lengths)
+
+
 def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
     import gymnasium as gym
 

@@ -65,11 +65,12 @@ class NearestNeighbourALP:
         """`compute` of M pairs in order, in a few array operations per part of the batch that
         no tree rebuild interrupts (the pair whose storing rebuilds the tree ends a part, so a
         `max_size` drops old points exactly where M calls would drop them): each task's nearest
-        earlier task among the database and the part's earlier tasks (the same neighbour as M
-        calls, but for exact distance ties, which continuous tasks do not make)."""
+        earlier task is the tree's, or the buffer's (the stored points after the tree, then the
+        part's earlier tasks) when strictly closer, with the squared distances and first-index
+        ties `compute` uses."""
         alps, start = np.zeros(len(tasks)), 0
         while start < len(tasks):
-            stop = min(len(tasks), start + self.tree_end + self.buffer_size - self.n)
+            stop = min(len(tasks), start + max(1, self.tree_end + self.buffer_size - self.n))
             alps[start:stop] = self._compute_part(tasks[start:stop], rewards[start:stop])
             start = stop
         return alps
@@ -78,26 +79,26 @@ class NearestNeighbourALP:
         m, alps = len(tasks), np.zeros(len(tasks))
         if m == 0:
             return alps
-        base = self.n
-        best_d = np.full(m, np.inf)
-        best_r = np.zeros(m)
-        if self.tree is not None:
-            d, j = self.tree.query(tasks)
-            best_d, best_r = d, self.rewards[self.tree_start + j]
-        earlier = self.tasks[self.tree_end : self.n]
-        if len(earlier):
-            d = np.sqrt(((tasks[:, None, :] - earlier[None]) ** 2).sum(axis=2))
-            j = d.argmin(axis=1)
-            closer = d[np.arange(m), j] < best_d
-            best_d = np.where(closer, d[np.arange(m), j], best_d)
-            best_r = np.where(closer, self.rewards[self.tree_end + j], best_r)
-        within = np.sqrt(((tasks[:, None, :] - tasks[None]) ** 2).sum(axis=2))
         order = np.arange(m)
-        within[order[:, None] <= order] = np.inf  # only the batch's earlier tasks
-        j = within.argmin(axis=1)
-        closer = within[order, j] < best_d
-        best_r = np.where(closer, rewards[j], best_r)
-        known = base + order > 5  # `compute` scores a pair once 6 are known
+        best_d, best_r = np.full(m, np.inf), np.zeros(m)
+        if self.tree is not None:
+            best_d, j = self.tree.query(tasks)
+            best_r = self.rewards[self.tree_start + j]
+        # the buffer's nearest: stored points first, then the part's earlier tasks (argmin's
+        # first index wins a tie, as over `compute`'s one buffer array)
+        buf_d2, buf_r = np.full(m, np.inf), np.zeros(m)
+        stored = self.tasks[self.tree_end : self.n]
+        if len(stored):
+            d2 = ((tasks[:, None, :] - stored[None]) ** 2).sum(axis=2)
+            j = d2.argmin(axis=1)
+            buf_d2, buf_r = d2[order, j], self.rewards[self.tree_end + j]
+        d2 = ((tasks[:, None, :] - tasks[None]) ** 2).sum(axis=2)
+        d2[order[:, None] <= order] = np.inf  # only the part's earlier tasks
+        j = d2.argmin(axis=1)
+        nearer = d2[order, j] < buf_d2
+        buf_d2, buf_r = np.where(nearer, d2[order, j], buf_d2), np.where(nearer, rewards[j], buf_r)
+        best_r = np.where(np.sqrt(buf_d2) < best_d, buf_r, best_r)
+        known = self.n + order > 5  # `compute` scores a pair once 6 are known
         alps[known] = np.abs(rewards - best_r)[known]
         self._add_many(tasks, rewards)
         return alps

@@ -5,9 +5,9 @@ that many), each world seeded `eval_seed + k`, and the pass ends when every worl
 its first episode. An evaluation plays `PolicySnapshot`s: on the many-world simulation several
 snapshots (the policies of several evaluation steps) play side by side, each on its own copy of
 the test set, in one pass whose steps cost what one snapshot's would. Sampled actions come from
-a generator of each snapshot's own, seeded with the evaluation seed, so a snapshot's results
-depend only on its weights and the seed, not on what it was played beside, and training's
-random streams stay as they were.
+a generator of each snapshot's own, seeded with the evaluation seed plus the chunk's first task
+index, so a snapshot's results depend only on its weights and the seed, not on what it was
+played beside, and training's random streams stay as they were.
 """
 
 from __future__ import annotations
@@ -53,14 +53,18 @@ class ChunkedEvaluator(ABC):
         n_tasks, results = len(self.tasks), []
         for lo in range(0, len(policies), self.copies):
             group = policies[lo : lo + self.copies]
-            generators = [
-                torch.Generator(self.device).manual_seed(self.seed) if stochastic else None
-                for _ in group
-            ]
             outcomes = [_Outcomes(n_tasks) for _ in group]
             with own_random_streams(self.seed):
                 for start in range(0, n_tasks, self.num_worlds):
                     chunk = np.arange(start, min(start + self.num_worlds, n_tasks))
+                    # each chunk's own stream: a chunk lasts as long as its slowest block, so
+                    # a stream carried over would depend on the policies played beside
+                    generators = [
+                        torch.Generator(self.device).manual_seed(self.seed + start)
+                        if stochastic
+                        else None
+                        for _ in group
+                    ]
                     self._play(group, generators, chunk, outcomes)
             tasks = self.tasks.astype(np.float64)
             results += [
@@ -138,7 +142,8 @@ class ManyWorldEvaluator(ChunkedEvaluator):
         spare = len(policies) - 1
         blocks = [(policies[min(b, spare)], generators[b] if b <= spare else None)
                   for b in range(self.copies)]  # fmt: skip
-        running = (torch.arange(n * self.copies, device=worlds.device) % n) < k
+        world = torch.arange(n * self.copies, device=worlds.device)
+        running = (world % n < k) & (world // n < len(policies))  # spare blocks: not waited for
         ended_with = None
         for step in itertools.count(1):
             actions = torch.cat(
