@@ -3,6 +3,7 @@ checkpoint resumes bit for bit, and its saved policy plays through `render --mod
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -144,6 +145,25 @@ def test_evaluate_reproduces_the_runs_own_last_evaluation(reference, tmp_path, c
         main(["evaluate", str(checkpoint), "--env", "stump-tracks", "--nb-test-episodes", "4"]) == 0
     )
     assert "(step 640)" in capsys.readouterr().out
+
+
+def test_a_run_killed_after_its_last_checkpoint_finishes_on_resume(reference, tmp_path):
+    """The checkpoint of the last step holds that step's frozen policy among those waiting
+    (`--eval-together 4`: none played yet); killed before the final pass, the run resumes,
+    plays them once, writes no second checkpoint and finishes."""
+    out = tmp_path / "late"
+    assert main(["train", *COMMON, "--eval-together", "4", "--out", str(out)]) == 0
+    last = out / "checkpoints" / f"step_{STEPS:012d}"
+    state = torch.load(last / "student.pt")
+    assert [p["step"] for p in state["pending_evaluations"]] == [256, 512, 768]
+    (out / "final_model.zip").unlink()  # killed during the final pass
+    status = json.loads((out / "status.json").read_text())
+    dead = {"status": "running", "pid": 2**22 + 7, "host": status["host"]}  # no such process
+    (out / "status.json").write_text(json.dumps(dead))
+    assert main(["train", "--resume", str(out), "--no-progress", "--quiet"]) == 0
+    assert (out / "evals_tasks.csv").read_text() == (reference / "evals_tasks.csv").read_text()
+    assert _evals(out) == _evals(reference)
+    assert (out / "final_model.zip").exists()
 
 
 def _episodes_until(run: Path, step: int | None) -> list[str]:

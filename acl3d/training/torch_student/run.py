@@ -95,6 +95,7 @@ class TorchRun:
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
         self.steps: int | None = None  # the steps trained, once provenance.json has its segment
         self.pending: list[Pending] = []  # evaluations a checkpoint left waiting
+        self.last_eval = -1  # the step of the latest evaluation (frozen policy), -1: none
 
     def device_name(self) -> str:
         """The device the student and worlds run on, with the GPU's model (runs on two GPU models
@@ -150,6 +151,8 @@ class TorchRun:
         self.controller.load_state_dict(load_state(folder / "controller"))
         self.env.set_state(runtime["env"])
         progress = load_state(folder / "progress")
+        # a checkpoint of the last step may follow that step's evaluation: not done twice
+        self.last_eval = int(progress.get("last_eval", -1))
         self.curriculum.episodes_done = int(progress["episodes_done"])
         self.previous_wall_time = float(progress.get("wall_time_s", 0.0))
         ckpt.set_rng_state(load_state(folder / "rng"))
@@ -198,7 +201,7 @@ class TorchRun:
         next_eval, next_ckpt = _next(steps, every_eval), _next(steps, every_ckpt)
         every_reset = c.reset_student_every
         next_reset = _next(steps, every_reset) if every_reset else None
-        last_eval = last_ckpt = -1
+        last_ckpt = steps if self.resume_from is not None else -1  # the one resumed from
         times = self.times
         while steps < target:
             tick = time.perf_counter()
@@ -223,14 +226,14 @@ class TorchRun:
                 with times.phase("evaluate"):
                     self._freeze_policy(steps)
                     self.evaluations.play(at_least=c.effective_eval_together)
-                last_eval, next_eval = steps, _next(steps, every_eval)
+                next_eval = _next(steps, every_eval)
             with times.phase("records"):
                 self._log_episodes(steps)
                 if steps >= next_ckpt:
                     self._checkpoint(steps, obs)
                     last_ckpt, next_ckpt = steps, _next(steps, every_ckpt)
         with times.phase("evaluate"):
-            if last_eval != steps:
+            if self.last_eval != steps:
                 self._freeze_policy(steps)
             self.evaluations.play(at_least=1)
         with times.phase("records"):
@@ -277,6 +280,7 @@ class TorchRun:
     def _freeze_policy(self, steps: int) -> None:
         """The evaluation of step `steps`: its policy waits for a pass (`eval_together`)."""
         snapshot = self.student.snapshot()
+        self.last_eval = steps
         self.evaluations.add(
             Pending(steps, self.curriculum.episodes_done, self.wall_time(), snapshot)
         )
@@ -297,6 +301,7 @@ class TorchRun:
             progress = {
                 "num_timesteps": steps,
                 "episodes_done": self.curriculum.episodes_done,
+                "last_eval": self.last_eval,
                 "time": time.time(),
                 "wall_time_s": self.wall_time(),
                 "config": fixed_settings(self.config),
