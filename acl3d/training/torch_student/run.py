@@ -117,9 +117,11 @@ class TorchRun:
                 c.env, c.n_envs, self.device, curriculum=self.curriculum, body=c.body,
                 **c.env_kwargs,
             )  # fmt: skip
+            # no more copies of the test set than the run will have evaluations
+            copies = min(c.effective_eval_together, c.steps // c.effective_eval_every + 1)
             self.evaluator = ManyWorldEvaluator(
                 c.env, c.body, c.env_kwargs, self.controller.test_tasks(), c.eval_seed,
-                c.eval_envs, self.device, c.effective_eval_together,
+                c.eval_envs, self.device, copies,
             )  # fmt: skip
         else:
             self.env = CpuTensorVectorEnv(
