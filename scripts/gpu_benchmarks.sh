@@ -17,12 +17,15 @@
 #                                          # stump-v2's Random and ALP-GMM cells, SEEDS seeds
 #                                          # each, one after the other (campaign run + export)
 #   scripts/gpu_benchmarks.sh summary OUT  # every run's last evaluation and phases
+#   scripts/gpu_benchmarks.sh pack OUT     # OUT's results in one file, OUT/results.tgz: every
+#                                          # run without checkpoints and TensorBoard files, its
+#                                          # teacher dump included (what `campaign export` needs)
 #
 # The runs use stump-v2's settings (acl3d/campaign/specs/stump-v2.yaml): Stump Tracks [0, 3] x
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|speed|repeat|learn|summary OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|speed|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -93,8 +96,13 @@ summary)
 s.get('seconds_by_phase'))" "$run/status.json" 2>/dev/null
   done | tee "$out/summary.txt"
   ;;
+pack)
+  packed=$(mktemp)
+  tar czf "$packed" --exclude=checkpoints --exclude=tb --exclude=results.tgz -C "$out" . &&
+    mv "$packed" "$out/results.tgz"
+  ;;
 *)
-  echo "unknown stage $stage: cpu, env, speed, repeat, learn or summary" >&2
+  echo "unknown stage $stage: cpu, env, speed, repeat, learn, summary or pack" >&2
   exit 2
   ;;
 esac
