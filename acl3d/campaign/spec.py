@@ -177,7 +177,8 @@ def check_runs(runs: list[RunSpec], on_this_machine: bool = True) -> None:
     """Every run's options as `train` will check them (names, bounds, combinations), so that a
     bad value is refused before the campaign writes anything or starts any run; without the
     bounds relative to this machine (cores, devices) when the runs train on other machines."""
-    from acl3d.training.config import student_params, validate
+    from acl3d.training.config import validate
+    from acl3d.training.student_settings import student_params
 
     for run in runs:
         check.path("run name", run.name)  # a grid label too long for a folder name

@@ -7,15 +7,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import re
 import sys
 from pathlib import Path
 
-import yaml
-
-from acl3d import validation as check
 from acl3d.bodies import BODIES
+from acl3d.cli.option_values import (
+    MAPPING_OPTIONS,
+    count,
+    key_values,
+    load_config_file,
+    parse_bounds,
+)
 from acl3d.cli.test_set_options import add_test_set_arguments
 from acl3d.envs import ENV_NAMES
 from acl3d.teachers import TEACHERS
@@ -70,7 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--steps",
-        type=_count,
+        type=count,
         help=f"training environment steps (default {_DEFAULTS.steps:.0e})".replace("e+0", "e"),
     )
     g.add_argument(
@@ -90,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--reset-student-every",
-        type=_count,
+        type=count,
         metavar="N",
         help="re-initialise the student every N steps",
     )
@@ -112,7 +115,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="K=V",
         help="SB3 hyperparameter override (repeatable)",
     )
-    g.add_argument("--buffer-size", type=_count, help="SAC replay buffer size (benchmark: 2e6)")
+    g.add_argument("--buffer-size", type=count, help="SAC replay buffer size (benchmark: 2e6)")
     g.add_argument(
         "--exclude-exploratory",
         choices=tuple(_EXCLUDE_EXPLORATORY),
@@ -130,7 +133,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("evaluation and checkpoints")
     g.add_argument(
         "--eval-every",
-        type=_count,
+        type=count,
         help="steps between evaluations (default min(5e5, max(5e4, steps/5)): 5 per run from "
         "250k to 2.5M steps)",
     )
@@ -148,11 +151,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         g, "the environment's default set", _DEFAULTS.nb_test_episodes, unset_is_none=True
     )
     g.add_argument(
-        "--checkpoint-every", type=_count, help="steps between checkpoints (default eval-every)"
+        "--checkpoint-every", type=count, help="steps between checkpoints (default eval-every)"
     )
     g.add_argument(
         "--periodical-samples-every",
-        type=_count,
+        type=count,
         help="steps between teacher snapshots for plots (0 = never)",
     )
     g = p.add_argument_group("runtime")
@@ -204,89 +207,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 _EXCLUDE_EXPLORATORY = {"auto": "auto", "on": True, "off": False}
 
 
-def _count(text: str) -> int:
-    """Integers written as 2e6 or 2000000."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number like 2e6, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number like 2e6, got {text!r}")
-    if value != int(value):
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
-    return int(value)
-
-
-def _key_values(items, what: str) -> dict:
-    out = {}
-    for item in items or ():
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"{what}: expected KEY=VALUE, got {item!r}")
-        try:
-            out[key.strip()] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise ValueError(f"{what}: {item!r} has a value that is not valid YAML") from None
-    return out
-
-
-def parse_bounds(items) -> dict[str, list[float]]:
-    out = {}
-    for item in items or ():
-        name, sep, rest = item.partition("=")
-        parts = rest.split(",")
-        try:
-            values = [float(v) for v in parts]
-        except ValueError:
-            values = []
-        if not sep or len(values) != 2:
-            raise ValueError(
-                f"--bounds: expected NAME=MIN,MAX (e.g. stump_height=0,9), got {item!r}"
-            )
-        out[name.strip()] = values
-    return out
-
-
-def load_config_file(path) -> dict:
-    path = Path(path)
-    if not path.exists():
-        raise ValueError(f"--config file {str(path)!r} does not exist")
-    if path.suffix.lower() == ".toml":
-        try:
-            import tomllib
-        except ImportError:  # Python 3.10
-            raise ValueError("TOML config files need Python >= 3.11; use YAML instead") from None
-
-        parse, errors = tomllib.loads, tomllib.TOMLDecodeError
-    else:
-        parse, errors = yaml.safe_load, yaml.YAMLError
-    try:
-        data = parse(path.read_text()) or {}
-    except (errors, OSError, UnicodeDecodeError) as exc:
-        where = " ".join(str(exc).split())  # the parser's position, on one line
-        raise ValueError(f"--config file {str(path)!r} cannot be read: {where}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"--config file {str(path)!r} must hold a mapping of options")
-    options = {k.replace("-", "_"): v for k, v in data.items()}
-    for key in _MAPPING_OPTIONS:  # merged with the repeatable options: checked here
-        if key in options and not isinstance(options[key], dict):
-            where = f"--config file {str(path)!r}"
-            raise ValueError(f"{where}: {check.fail(key, options[key], 'a mapping of names')}")
-    for key in _COUNTS:  # YAML reads 2e6 as a string
-        if isinstance(options.get(key), str):
-            try:
-                options[key] = _count(options[key])
-            except argparse.ArgumentTypeError as exc:
-                raise ValueError(f"--config {key}: {exc}") from None
-    return options
-
-
-_COUNTS = (
-    "steps", "reset_student_every", "buffer_size", "eval_every", "checkpoint_every",
-    "periodical_samples_every",
-)  # fmt: skip
-
-
 def options_from_args(args) -> dict:
     """Config file values, overridden by every option given on the command line."""
     options = dict(BENCHMARK[args.benchmark]) if args.benchmark else {}
@@ -307,9 +227,9 @@ def options_from_args(args) -> dict:
         options["exclude_exploratory"] = _EXCLUDE_EXPLORATORY[args.exclude_exploratory]
     for name, items, parse in (
         ("bounds", args.bounds, parse_bounds),
-        ("teacher_params", args.teacher_param, lambda x: _key_values(x, "--teacher-param")),
-        ("student_params", args.student_param, lambda x: _key_values(x, "--student-param")),
-        ("env_kwargs", args.env_kwarg, lambda x: _key_values(x, "--env-kwarg")),
+        ("teacher_params", args.teacher_param, lambda x: key_values(x, "--teacher-param")),
+        ("student_params", args.student_param, lambda x: key_values(x, "--student-param")),
+        ("env_kwargs", args.env_kwarg, lambda x: key_values(x, "--env-kwarg")),
     ):
         if items:
             options[name] = {**options.get(name, {}), **parse(items)}
@@ -327,13 +247,6 @@ def default_run_dir(options: dict) -> str:
     return str(path)
 
 
-# config fields that are mappings -> their repeatable option
-_MAPPING_OPTIONS = {
-    "env_kwargs": "--env-kwarg",
-    "student_params": "--student-param",
-    "teacher_params": "--teacher-param",
-    "bounds": "--bounds",
-}
 _FIELD_MESSAGE = re.compile(r"^(\w+)(?:\['([^']*)'\])?=")
 
 
@@ -355,8 +268,8 @@ def option_message(message: str) -> str:
     if match is None or match[1] not in fields:
         return message
     field, key = match[1], match[2]
-    if field in _MAPPING_OPTIONS and key is not None:
-        return f"{_MAPPING_OPTIONS[field]} {key}={message[match.end() :]}"
+    if field in MAPPING_OPTIONS and key is not None:
+        return f"{MAPPING_OPTIONS[field]} {key}={message[match.end() :]}"
     return f"--{field.replace('_', '-')}={message[match.end() :]}"
 
 

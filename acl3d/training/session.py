@@ -23,15 +23,11 @@ from acl3d.run_format.checkpoints import DamagedCheckpoint, verify_manifest
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
 from acl3d.training import students
-from acl3d.training.config import (
-    TrainConfig,
-    excludes_exploratory,
-    fixed_settings,
-    student_params,
-)
+from acl3d.training.config import TrainConfig, excludes_exploratory, fixed_settings
 from acl3d.training.curriculum import CurriculumVecEnv
 from acl3d.training.evaluation import EvalResult, evaluate, make_predict
 from acl3d.training.run_dir import RunDir, read_state
+from acl3d.training.student_settings import student_params
 from acl3d.training.workers import env_keywords, make_env, make_vec_env
 
 

@@ -26,16 +26,10 @@ from acl3d.atomic_files import is_disk_full
 from acl3d.run_format.tables import read_csv, truncate_csv
 from acl3d.training import students
 from acl3d.training.callbacks import run_callbacks
-from acl3d.training.config import (
-    RESUME_MAY_CHANGE,
-    TrainConfig,
-    round_steps,
-    steps_per_collection,
-    student_params,
-    validate,
-)
+from acl3d.training.config import RESUME_MAY_CHANGE, TrainConfig, validate
 from acl3d.training.run_dir import RunDir, read_state
 from acl3d.training.session import Session, verify_checkpoint
+from acl3d.training.student_settings import round_steps, steps_per_collection, student_params
 
 
 @dataclass

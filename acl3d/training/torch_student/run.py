@@ -33,9 +33,10 @@ from acl3d.envs.tensor_vector import CpuTensorVectorEnv, TensorVectorEnv
 from acl3d.run_format.tables import CsvLog, truncate_csv
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
-from acl3d.training.config import TrainConfig, fixed_settings, student_params, uses_many_worlds
+from acl3d.training.config import TrainConfig, fixed_settings, uses_many_worlds
 from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
+from acl3d.training.student_settings import student_params
 from acl3d.training.torch_student import rsl_ppo
 from acl3d.training.torch_student.eval_queue import EvaluationQueue, Pending
 from acl3d.training.torch_student.evaluation import ManyWorldEvaluator, WorldEvaluator
