@@ -15,13 +15,14 @@ import numpy as np
 from scipy.ndimage import map_coordinates
 
 from acl3d.envs.arena import TRACK_HALF_WIDTH
+from acl3d.envs.lidar import TerrainSensor
 
 FORWARD = np.linspace(-1.0, 3.0, 9)  # metres along the heading: 1 m behind to 3 m ahead
 LATERAL = np.linspace(-1.5, 1.5, 7)  # metres to the body's left (+) and right (-)
 MIN_NORM = 1e-12  # below this the body's forward axis has no horizontal heading
 
 
-class HeightScan:
+class HeightScan(TerrainSensor):
     """Heights around a body's root on its arena's heightfield: the rules' terrain sensor.
 
     Args:
@@ -33,6 +34,8 @@ class HeightScan:
     equal rows) and `read_batch` gives the `nb_rays` readings of N envs (forward offsets varying
     fastest): terrain height - root height, in metres.
     """
+
+    reads_height_rows = True
 
     def __init__(self, arena, forward: np.ndarray = FORWARD, lateral: np.ndarray = LATERAL):
         self.arena = arena

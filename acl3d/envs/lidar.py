@@ -7,6 +7,8 @@ the hit distance as a fraction of the range (1 = nothing within range). Only geo
 
 from __future__ import annotations
 
+from typing import ClassVar, Protocol
+
 import mujoco
 import numpy as np
 
@@ -15,7 +17,26 @@ LIDAR_TYPES = {"down": (1.5, 0.0), "up": (2.3, 1.5), "full": (np.pi, 0.0)}
 NB_RAYS = 10
 
 
-class Lidar:
+class TerrainSensor(Protocol):
+    """What the rules know of their terrain sensor (a lidar or a height scan): `nb_rays`
+    readings per env, and which of two ways it reads them.
+
+    A sensor that `reads_height_rows` reads N envs at once from rows of heights the rules keep
+    (`batch_heights(n)`, each row filled from its env's `arena.heights`; `read_batch(heights,
+    origins, rotations)`), so the batched env steps all its envs as one batch. Any other
+    sensor reads one env's own scene (`read(model, data, origin)`), unless its rules keep rows
+    of their own for it (Parkour's surfaces, `ParkourLidar.read_rows`).
+    """
+
+    nb_rays: int
+    reads_height_rows: ClassVar[bool]
+
+
+class Lidar(TerrainSensor):
+    """The rays cast by MuJoCo on one env's scene (whatever geoms it holds)."""
+
+    reads_height_rows = False
+
     def __init__(self, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE):
         if kind not in LIDAR_TYPES:
             raise ValueError(f"lidar type {kind!r}; valid: {list(LIDAR_TYPES)}")
@@ -74,6 +95,8 @@ class HeightLineLidar(Lidar):
     `searchsorted` finds it for all rays, and the crossing is solved on the segment before it.
     `mj_multiRay` instead visits every heightfield column. Forward/downward rays only ("down").
     """
+
+    reads_height_rows = True
 
     def __init__(
         self, arena, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE

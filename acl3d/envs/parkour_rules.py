@@ -22,7 +22,7 @@ import numpy as np
 from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
 from acl3d.envs.climbing import after_steps, before_steps
-from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS
+from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS, TerrainSensor
 from acl3d.envs.track_rules import FAIL_REWARD, EpisodeRows, TrackRules, torque_use
 
 SURVIVAL_STEPS = 600
@@ -32,7 +32,7 @@ PARKOUR_CRITICAL_WALKERS = ("profile_chimpanzee",)  # the chimpanzee's head is a
 DEFAULT_LIDARS = {"walker": "down", "amphibian": "down", "climber": "up", "swimmer": "full"}
 
 
-class ParkourLidar:
+class ParkourLidar(TerrainSensor):
     """The original's 10 rays cast analytically on Parkour's surfaces, with surface-type flags.
 
     Same rays as the track lidar (`acl3d.envs.lidar`: angles a*i/10 + b per type, 5.33 m).
@@ -44,6 +44,8 @@ class ParkourLidar:
     the same arithmetic whatever N (only exact reductions: min and max), so each row is
     bit-identical to the env cast alone.
     """
+
+    reads_height_rows = False  # it reads the ground, ceiling and water rows of `ParkourRules`
 
     def __init__(self, kind: str, arena, nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE):
         if kind not in LIDAR_TYPES:

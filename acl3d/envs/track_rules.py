@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from acl3d.bodies.base import BoundBody
-from acl3d.envs.lidar import Lidar
+from acl3d.envs.lidar import TerrainSensor
 from acl3d.terrain.tracks import END_X
 
 FAIL_REWARD = -100.0
@@ -95,7 +95,7 @@ class TrackRules:
     # the MjData fields the step reads through `physics.field`
     physics_fields: tuple[str, ...] = ("qpos", "qvel", "xpos", "xmat", "cvel", "sensordata")
 
-    def __init__(self, bound: BoundBody, lidar: Lidar, end_x: float = END_X):
+    def __init__(self, bound: BoundBody, lidar: TerrainSensor, end_x: float = END_X):
         self.bound = bound
         self.body = bound.body
         self.lidar = lidar
@@ -149,11 +149,11 @@ class TrackRules:
     def steps_in_batch(self) -> bool:
         """N envs under these rules step as one batch when its sensor reads rows of heights (the
         batched env steps a ray-cast lidar's one env at a time); Parkour's always do."""
-        return hasattr(self.lidar, "batch_heights")
+        return self.lidar.reads_height_rows
 
     def new_rows(self, n: int) -> EpisodeRows:
         """Running-episode rows for n envs under these rules."""
-        heights = self.lidar.batch_heights(n) if hasattr(self.lidar, "batch_heights") else None
+        heights = self.lidar.batch_heights(n) if self.lidar.reads_height_rows else None
         return EpisodeRows(n, heights)
 
     def take_terrain(self, rows: EpisodeRows, i: int = 0) -> None:
