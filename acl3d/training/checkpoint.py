@@ -17,6 +17,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d.teachers.base import load_state, save_state
+from acl3d.training.exclusion import ExcludingReplayBuffer
 from acl3d.training.run_dir import read_state
 
 _RMS = ("mean", "var", "count")
@@ -77,7 +78,7 @@ def algorithm_state(model) -> dict:
     return {
         "last_obs": model._last_obs,
         "last_episode_starts": model._last_episode_starts,
-        "last_original_obs": getattr(model, "_last_original_obs", None),
+        "last_original_obs": model._last_original_obs,
         "ep_info_buffer": [_plain(info) for info in model.ep_info_buffer or ()],
         "ep_success_buffer": [bool(v) for v in model.ep_success_buffer or ()],
         "num_timesteps": int(model.num_timesteps),
@@ -122,12 +123,12 @@ def save_replay_buffer(buffer: ReplayBuffer, path) -> None:
     """The filled part of an SB3 replay buffer as NPZ (plus its write position, and the
     `excluded` flags of an `acl3d.training.exclusion.ExcludingReplayBuffer`)."""
     end = buffer.buffer_size if buffer.full else buffer.pos
-    names = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
-    arrays = {
-        name: getattr(buffer, name)[:end]
-        for name in (*names, "excluded")
-        if getattr(buffer, name, None) is not None
-    }
+    # a memory-saving buffer keeps each next observation in the next slot of `observations`
+    nexts = () if buffer.optimize_memory_usage else ("next_observations",)
+    names = ("observations", *nexts, "actions", "rewards", "dones", "timeouts")
+    if isinstance(buffer, ExcludingReplayBuffer):
+        names += ("excluded",)
+    arrays = {name: getattr(buffer, name)[:end] for name in names}
     np.savez(Path(path), pos=np.int64(buffer.pos), full=np.bool_(buffer.full), **arrays)
 
 

@@ -18,6 +18,7 @@ kept transitions only.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Generator
 
 import numpy as np
@@ -28,7 +29,32 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples, RolloutBu
 _FLATTENED = ("observations", "actions", "values", "log_probs", "advantages", "returns")
 
 
-class ExcludingRolloutBuffer(RolloutBuffer):
+class ExcludingBuffer(ABC):
+    """A student's buffer that leaves marked transitions out of the updates: what the exclusion
+    callback marks through and the students skip an update on."""
+
+    @abstractmethod
+    def exclude_next(self, flags) -> None:
+        """Which of the transitions the next `add()` stores (one per env) are excluded."""
+
+    @property
+    @abstractmethod
+    def kept(self) -> int:
+        """Transitions the next update may use."""
+
+    @property
+    @abstractmethod
+    def excluded_fraction(self) -> float:
+        """The share of the buffer's transitions that are excluded."""
+
+
+def keeps_nothing(buffer) -> bool:
+    """The student's buffer excludes transitions and keeps none: its update is skipped (a plain
+    SB3 buffer always updates)."""
+    return isinstance(buffer, ExcludingBuffer) and buffer.kept == 0
+
+
+class ExcludingRolloutBuffer(ExcludingBuffer, RolloutBuffer):
     """A PPO rollout buffer whose `get()` yields only the transitions not marked `excluded`.
 
     Minibatches come from the same `np.random.permutation` draw as SB3's, filtered to kept
@@ -41,7 +67,6 @@ class ExcludingRolloutBuffer(RolloutBuffer):
         self.excluded = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
 
     def exclude_next(self, flags) -> None:
-        """Which of the transitions the next `add()` stores (one per env) are excluded."""
         self.excluded[self.pos] = flags
 
     @property
@@ -73,13 +98,13 @@ class ExcludingPPO(PPO):
     would fail on it); with any other buffer it is PPO itself. acl3d's `ppo` student."""
 
     def train(self) -> None:
-        if getattr(self.rollout_buffer, "kept", None) == 0:
+        if keeps_nothing(self.rollout_buffer):
             self.logger.record("train/skipped_update", 1)
             return
         super().train()
 
 
-class ExcludingReplayBuffer(ReplayBuffer):
+class ExcludingReplayBuffer(ExcludingBuffer, ReplayBuffer):
     """A SAC replay buffer that never samples the transitions marked `excluded`.
 
     With none excluded, samples are SB3's own draws; otherwise one uniform draw over the kept
@@ -103,7 +128,6 @@ class ExcludingReplayBuffer(ReplayBuffer):
         self._row_kept[:] = 0
 
     def exclude_next(self, flags) -> None:
-        """Which of the transitions the next `add()` stores (one per env) are excluded."""
         self._next[:] = flags
 
     def add(self, *args, **kwargs) -> None:
@@ -159,7 +183,7 @@ class ExcludingSAC(SAC):
     transition; with any other buffer it is SAC itself. acl3d's `sac` student."""
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if getattr(self.replay_buffer, "kept", None) == 0:
+        if keeps_nothing(self.replay_buffer):
             self.logger.record("train/skipped_update", 1)
             return
         super().train(gradient_steps, batch_size)
