@@ -17,9 +17,11 @@ from collections.abc import Callable
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 from acl3d.run_format.tables import CsvLog
 from acl3d.training import students
+from acl3d.training.exclusion import ExcludingBuffer
 from acl3d.training.session import Session
 
 EVAL_COLUMNS = (
@@ -115,9 +117,9 @@ class EpisodeLogCallback(BaseCallback):
         for key, value in self.teacher_scalars().items():
             self.logger.record(f"curriculum/teacher/{key}", value)
 
-    def _teacher_bk(self) -> dict:
-        teacher = getattr(self.session.controller, "teacher", None)
-        return getattr(teacher, "bk", None) or {}
+    def _teacher_bk(self) -> dict[str, list]:
+        """The teacher's book-keeping series (every `Teacher` keeps them in `bk`)."""
+        return self.session.controller.teacher.bk
 
     def teacher_scalars(self) -> dict[str, float]:
         """Mean of each scalar book-keeping series of the teacher (ALPs, losses, KL, ...) over
@@ -222,9 +224,9 @@ class ExclusionCallback(BaseCallback):
         super().__init__()
         self.session = session
 
-    def _buffer(self):
+    def _buffer(self) -> ExcludingBuffer:
         model = self.model
-        return model.rollout_buffer if hasattr(model, "rollout_buffer") else model.replay_buffer
+        return model.rollout_buffer if isinstance(model, OnPolicyAlgorithm) else model.replay_buffer
 
     def _on_step(self) -> bool:
         self._buffer().exclude_next(self.session.curriculum_env.step_exploratory)

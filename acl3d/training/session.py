@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d import validation as check
@@ -314,7 +315,7 @@ class Session:
         if self.vecnorm is not None:
             ckpt.save_normalization(self.vecnorm, folder / "model.zip")
             runtime["vecnormalize"] = ckpt.normalization_runtime(self.vecnorm)
-        if hasattr(model, "replay_buffer") and self.config.save_replay_buffer:
+        if isinstance(model, OffPolicyAlgorithm) and self.config.save_replay_buffer:
             ckpt.save_replay_buffer(model.replay_buffer, folder / "replay_buffer.npz")
         save_state(folder / "runtime", runtime)
         save_state(folder / "controller", self.controller.state_dict())
