@@ -1,5 +1,6 @@
 """Re-running one cell of a campaign (`--only`) and the Python recipe run as a script."""
 
+import subprocess
 import sys
 import types
 
@@ -51,3 +52,26 @@ def test_a_worker_reimporting_an_unguarded_script_gets_the_fix(monkeypatch):
     monkeypatch.setitem(sys.modules, "__main__", worker_main)
     with pytest.raises(RuntimeError, match='if __name__ == "__main__"'):
         check_executor("local", 2)
+
+
+UNGUARDED = """
+import multiprocessing, sys
+from acl3d.campaign.executors import check_executor
+
+check_executor("local", 1)  # at top level, as run_campaign in an unguarded recipe
+if __name__ == "__main__":
+    worker = multiprocessing.get_context("spawn").Process(target=len, args=((),))
+    worker.start()
+    worker.join()
+    sys.exit(worker.exitcode)
+"""
+
+
+def test_a_spawned_worker_running_an_unguarded_script_gets_the_fix(tmp_path):
+    """A real spawn worker: while it re-runs the script, its `__main__` is still its own (the
+    check above once looked only there, and the worker died on the campaign lock)."""
+    script = tmp_path / "recipe.py"
+    script.write_text(UNGUARDED)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1, done.stderr
+    assert f"worker imported {script}: put the call under" in done.stderr

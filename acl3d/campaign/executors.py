@@ -45,12 +45,17 @@ def refuse_in_worker_import() -> None:
     """A worker started with spawn or forkserver re-imports the user's main script (as
     `__mp_main__`); a script that calls `run_campaign` at top level, without an
     `if __name__ == "__main__":` guard, would start the campaign again in every worker (which
-    then died on the campaign lock). Refuse that with the fix in the message."""
-    main = sys.modules.get("__main__")
-    if getattr(main, "__name__", None) == "__mp_main__":
+    then died on the campaign lock). Refuse that with the fix in the message.
+
+    While the worker runs the script, `__mp_main__` is the script's module and `__main__` is
+    still the worker's own (they are the same module everywhere else); once it has run, the
+    worker's `__main__` is named `__mp_main__`."""
+    main, script = sys.modules.get("__main__"), sys.modules.get("__mp_main__")
+    importing = script is not None and script is not main
+    if importing or getattr(main, "__name__", None) == "__mp_main__":
         raise RuntimeError(
             f"run_campaign was called while a campaign worker imported "
-            f"{getattr(main, '__file__', 'the main script')}: put the call under "
+            f"{getattr(script, '__file__', 'the main script')}: put the call under "
             '`if __name__ == "__main__":` (workers re-import the script that starts them)'
         )
 
