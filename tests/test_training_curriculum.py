@@ -10,6 +10,8 @@ import pytest
 from gymnasium.wrappers import TimeLimit
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.task_space import TaskSpace
 from acl3d.training.curriculum import CurriculumEnv, CurriculumVecEnv, WorkerError
 
 MAX_STEPS = 9
@@ -25,10 +27,13 @@ class CountingEnv(gym.Env):
 
     observation_space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float32)
     action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    # what a curriculum reads of an env (acl3d.envs.task_env.TaskEnv), as a track has it
+    task_space = TaskSpace.from_bounds({"length": [0.0, 1000.0], "reward": [-1.0, 1.0]})
+    curriculum_profile = CurriculumProfile()
 
     def __init__(self, crash_at_task: int | None = None):
         self.crash_at_task = crash_at_task
-        self.task = None
+        self.task = np.zeros(2)
         self.t = 0
 
     def reset(self, *, seed=None, options=None):
@@ -38,6 +43,13 @@ class CountingEnv(gym.Env):
             raise FloatingPointError("stand-in env exploded on purpose")
         self.t = 0
         return self._obs(), {}
+
+    def set_task(self, task) -> None:
+        self.task = np.asarray(task, dtype=np.float64)
+
+    @property
+    def task_vector(self) -> np.ndarray:
+        return self.task.astype(np.float32)
 
     def _obs(self):
         return np.array([self.task[0], self.task[1], self.t], dtype=np.float32)

@@ -262,6 +262,7 @@ def check_episodes(episodes: int, n_tasks: int) -> None:
 
 
 def run(args) -> int:
+    from acl3d.envs.task_env import task_env
     from acl3d.run_format.checkpoints import check_zip
     from acl3d.teachers import test_sets
     from acl3d.training.checkpoint import MODEL_MEMBERS
@@ -274,8 +275,8 @@ def run(args) -> int:
     check_zip(t.model, POLICY_MEMBERS if t.policy_file else MODEL_MEMBERS)
     probe = make_env(t.env, t.body, t.env_kwargs)  # also checks the env and body names
     try:
-        space = probe.unwrapped.task_space
-        profile = getattr(probe.unwrapped, "curriculum_profile", None)
+        inner = task_env(probe)
+        space, profile = inner.task_space, inner.curriculum_profile
     finally:
         probe.close()
     if args.test_set is None and t.tasks is not None:

@@ -159,16 +159,19 @@ def make_source_env(source: Source, args, **render_kwargs):
 
 def _tasks(env, args, run_tasks) -> list:
     """Tasks to play, as flat vectors (the env's task space checks them)."""
+    from acl3d.envs.task_env import task_env
     from acl3d.teachers import test_sets
     from acl3d.training.report import pick_video_tasks
 
-    space = env.unwrapped.task_space
+    inner = task_env(env)
+    space = inner.task_space
     if args.task:
         tasks = [space.to_vector(space.parse(t)) for t in args.task]
         return tasks * args.episodes
     if args.test_set is not None:
-        profile = getattr(env.unwrapped, "curriculum_profile", None)
-        pool = test_sets.resolve(args.test_set, space, max(100, args.episodes), profile)
+        pool = test_sets.resolve(
+            args.test_set, space, max(100, args.episodes), inner.curriculum_profile
+        )
         return list(pick_video_tasks(pool, args.episodes))
     if run_tasks is not None:
         return list(pick_video_tasks(np.asarray(run_tasks), args.episodes))

@@ -23,7 +23,6 @@ import gymnasium as gym
 import numpy as np
 
 from acl3d import validation
-from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.episode_statistics import EpisodeStatistics, check_methods
 
 INFO_KEY = "curriculum"
@@ -95,13 +94,6 @@ def played_task(env: gym.Env, task) -> np.ndarray:
     if isinstance(task, dict):
         return env.unwrapped.task_vector
     return np.asarray(task, dtype=np.float32)
-
-
-def success_return(env: gym.Env) -> float:
-    """The return above which an episode of `env` masters its task: its curriculum profile's
-    (a Gymnasium env without one: the default profile's)."""
-    profile = getattr(env.unwrapped, "curriculum_profile", None) or CurriculumProfile()
-    return profile.success_return
 
 
 class TaskQueue:

@@ -36,15 +36,10 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from acl3d.envs.curriculum_wrapper import (
-    INFO_KEY,
-    CurriculumWorker,
-    TaskQueue,
-    played_task,
-    success_return,
-)
+from acl3d.envs.curriculum_wrapper import INFO_KEY, CurriculumWorker, TaskQueue, played_task
 from acl3d.envs.env_state import restore_wrappers
 from acl3d.envs.episode_statistics import EpisodeBatch, EpisodeStatistics
+from acl3d.envs.task_env import SnapshotEnv, task_env
 from acl3d.vec.batched_sb3 import BatchedVecEnv
 
 ERROR_KEY = "acl3d_worker_error"
@@ -80,7 +75,10 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
 
     def __init__(self, env: gym.Env):
         super().__init__(env)
-        self.queue = TaskQueue(success_return(env))
+        inner = task_env(env)  # a ValueError naming an env no curriculum can drive
+        self.queue = TaskQueue(inner.curriculum_profile.success_return)
+        # its snapshots continue a checkpoint's running episode exactly
+        self._snapshots = inner if isinstance(inner, SnapshotEnv) else None
         self.stats: EpisodeStatistics | None = None  # sized at the first reset (task length)
         self._last_obs = None
         self._error: str | None = None
@@ -129,15 +127,14 @@ class CurriculumEnv(gym.Wrapper, CurriculumWorker):
         """Queue, running episode and the env's own `get_state()`: what a checkpoint needs to
         continue this worker's episode exactly (the same layout as a batched sub-env's, so a run
         may resume on another vec env kind). JSON scalars and numpy arrays; `"env"` is None for
-        an env without `get_state()` (its episode then cannot be continued)."""
-        inner = self.env.unwrapped
+        an env that is no `SnapshotEnv` (its episode then cannot be continued)."""
         size = len(self.queue.tasks[0]) if self.queue.tasks else 0
         running = self.stats is not None
         return self.queue.get_state(
             float(self.stats.returns[0]) if running else 0.0,
             int(self.stats.lengths[0]) if running else 0,
             self._last_obs,
-            inner.get_state() if hasattr(inner, "get_state") else None,
+            None if self._snapshots is None else self._snapshots.get_state(),
             size,
         )
 

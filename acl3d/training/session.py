@@ -20,6 +20,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from acl3d import validation as check
 from acl3d.atomic_files import atomic_replace, atomic_state_files, removed_on_failure, temp_prefix
+from acl3d.envs.task_env import TaskEnv, task_env
 from acl3d.run_format.checkpoints import DamagedCheckpoint, verify_manifest
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
@@ -80,38 +81,32 @@ def env_kwargs_error(config: TrainConfig, exc: Exception) -> Exception:
 
 
 def probe_task_space(config: TrainConfig, env=None):
-    """(task space with the run's teacher bounds applied, the env's curriculum profile or None)."""
+    """(task space with the run's teacher bounds applied, the env's curriculum profile); a
+    ValueError naming the env if it is not a `TaskEnv`."""
     own = env is None
     env = probe_env(config) if own else env
     try:
-        task_space = getattr(env.unwrapped, "task_space", None)
-        profile = getattr(env.unwrapped, "curriculum_profile", None)
-        if task_space is None:
-            raise ValueError(
-                f"environment {config.env!r} has no task_space: no curriculum possible"
-            )
+        inner = task_env(env)
+        task_space, profile = inner.task_space, inner.curriculum_profile
         if config.bounds:
             task_space = task_space.with_bounds(**{k: tuple(v) for k, v in config.bounds.items()})
-            check_bounds(env, task_space, config)
+            check_bounds(inner, task_space, config)
     finally:
         if own:
             env.close()
     return task_space, profile
 
 
-def check_bounds(env, task_space, config: TrainConfig) -> None:
+def check_bounds(env: TaskEnv, task_space, config: TrainConfig) -> None:
     """Both ends of every bounded parameter must be buildable (the env's `set_task` check), so
     that no task the teacher samples fails after the run started, or after `overwrite` deleted
     the run it replaces."""
-    set_task = getattr(env.unwrapped, "set_task", None)
-    if set_task is None:
-        return
     for p in task_space.parameters:
         if p.name not in config.bounds:
             continue
         for end in (p.low, p.high):
             try:
-                set_task({p.name: end[0] if p.dims == 1 else np.asarray(end)})
+                env.set_task({p.name: end[0] if p.dims == 1 else np.asarray(end)})
             except ValueError as exc:
                 why = " ".join(str(exc).split())
                 raise check.fail(
@@ -124,9 +119,7 @@ def check_bounds(env, task_space, config: TrainConfig) -> None:
 def check_test_tasks(env, tasks, task_names: list[str]) -> None:
     """Every test task must be playable by the env (its `set_task` check), so that a bad test
     set fails at start, not at the first evaluation after hours of training."""
-    set_task = getattr(env.unwrapped, "set_task", None)
-    if set_task is None:
-        return
+    set_task = task_env(env).set_task
     for i, task in enumerate(tasks):
         try:
             set_task(task)

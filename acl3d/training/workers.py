@@ -27,7 +27,8 @@ START_METHODS: tuple[str, ...] = ("forkserver", "spawn")
 def make_env(env_name: str, body: str | None = None, env_kwargs=None, render_mode=None) -> gym.Env:
     """An acl3d track by short name (`stump-tracks`, ...) or any Gymnasium id (`ns/Name-v0`).
 
-    Tracks get `body`; other ids get only `env_kwargs`. Curricula need `env.unwrapped.task_space`.
+    Tracks get `body`; other ids get only `env_kwargs`. Curricula need `env.unwrapped` to be a
+    `TaskEnv` (`acl3d.envs.task_env`), as every acl3d env is.
     """
     kwargs = dict(env_kwargs or {})
     if render_mode is not None:
