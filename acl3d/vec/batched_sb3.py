@@ -39,9 +39,8 @@ class SubEnv(CurriculumWorker):
 
     # ------------------------------------------------------------------ CurriculumEnv API
     def get_state(self) -> dict:
-        """As `CurriculumEnv.get_state`: queue, running episode and the single env's state."""
-        if not hasattr(self.env, "get_state"):
-            raise ValueError(f"{type(self.env).__name__} has no get_state(): cannot checkpoint it")
+        """As `CurriculumEnv.get_state`: queue, running episode and the single env's state (a
+        batched env's sub-envs are acl3d envs: each a `SnapshotEnv`)."""
         self._owner.batch.sync(self._index)
         return self.queue.get_state(
             self.episode_return,
