@@ -89,5 +89,18 @@ def test_seeds_needed_matches_the_t_test_power():
     assert stats.seeds_needed([0, 1, 2], [10, 11, 12]) == 2  # a huge effect: the minimum
 
 
+def test_power_at_the_corrected_level_needs_more_seeds():
+    """d = 1: 17 runs per side at 0.05, 30 at 0.05/11 (the normal approximation 2 (z_{1 - a/2}
+    + z_0.8)^2 / d^2 gives 27.1, the t's heavier tails a few more); a p below 0.05/m passes
+    Holm's correction over m tests."""
+    alpha = stats.family_alpha([0.2, float("nan")] + [0.5] * 10)  # 11 defined tests
+    assert alpha == pytest.approx(0.05 / 11)
+    assert stats.seeds_needed([0, 1, 2], [1, 2, 3], alpha=alpha) == 30
+    assert stats.family_alpha([float("nan")]) == 0.05  # no defined test: nothing to correct
+    p = np.full(11, 0.9)
+    p[3] = alpha * 0.99
+    assert stats.holm(p)[3] < 0.05
+
+
 def test_probability_of_improvement_needs_three_runs_a_side():
     assert not stats.enough_runs([1, 2], [1, 2, 3]) and stats.enough_runs([1, 2, 3], [4, 5, 6])

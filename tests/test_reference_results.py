@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from acl3d import provenance, results
+from acl3d.analysis import stats
 from acl3d.analysis.curriculum_files import read_episodes, read_teacher
 from acl3d.analysis.export import export_campaign
 from acl3d.analysis.leaderboard import (
@@ -189,6 +190,11 @@ def test_leaderboard_from_committed_form(tmp_path):
     assert list(rows) == ["random", "alp-gmm", "riac"]  # Random first
     for teacher, x in finals.items():
         assert f"{x.mean():.1f} ± {x.std(ddof=1):.1f}" in rows[teacher]
+    # the power estimate at 0.05, then at the level of Holm's correction over the 2 comparisons
+    assert "return seeds for 80% power (Holm)" in text
+    x, y = finals["alp-gmm"], finals["random"]
+    raw, corrected = stats.seeds_needed(x, y), stats.seeds_needed(x, y, alpha=0.05 / 2)
+    assert corrected > raw and rows["alp-gmm"].endswith(f"| {raw:.0f} ({corrected:.0f}) |")
     assert "budget 1,024 steps per run · 3 seeds" in text
     assert (tmp_path / "docs" / "figures" / "reference-mini_mean_return.png").exists()
     assert "](figures/reference-mini_mean_return.png)" in text

@@ -23,7 +23,7 @@ import yaml
 
 from acl3d import provenance, results
 from acl3d.analysis import stats
-from acl3d.analysis.compare import with_holm
+from acl3d.analysis.compare import with_holm, with_power
 from acl3d.analysis.export import EVAL_TASK_COLUMNS, task_columns
 from acl3d.analysis.report import check_options, markdown_table, write_csv, write_report
 from acl3d.analysis.runs import Run, load_runs
@@ -162,11 +162,12 @@ def against_each(
     """Each new teacher against each reference teacher on final scores: means, P(new > ref)
     with its bootstrap CI ("insufficient runs" below `stats.MIN_RUNS` on a side), Welch's and
     the Mann-Whitney test with Holm's correction over these comparisons, and the seeds per side
-    a t-test would need for 80% power at the observed effect."""
+    a t-test would need for 80% power at the observed effect, raw and corrected."""
     finals: dict[str, list[float]] = {}
     for r in runs:
         finals.setdefault(r.teacher, []).append(float(r.metrics[metric][-1]))
-    rows = []
+    rows: list[dict] = []
+    compared: list[tuple[dict, np.ndarray, np.ndarray]] = []
     for teacher in new_teachers:
         x = np.array(finals[teacher])
         for other in sorted(t for t in finals if t not in new_teachers):
@@ -188,9 +189,10 @@ def against_each(
                     "p": test.p,
                     "significant": test.significant,
                     "mw_p": stats.mann_whitney(x, y).p,
-                    "seeds_needed": stats.seeds_needed(x, y),
                 }
             )
+            compared.append((rows[-1], x, y))
+    with_power(compared)
     return with_holm(with_holm(rows, "p"), "mw_p")
 
 
@@ -236,7 +238,8 @@ def analyze_against(
     out.mkdir(parents=True, exist_ok=True)
     write_csv(rows, out / "against_each_reference.csv")
     columns = ["teacher", "reference", "mean", "reference_mean", "difference", "P(improvement)",
-               "p", "p_holm", "mw_p", "mw_p_holm", "seeds_needed", "significant_holm"]  # fmt: skip
+               "p", "p_holm", "mw_p", "mw_p_holm", "seeds_needed", "seeds_needed_holm",
+               "significant_holm"]  # fmt: skip
     extra = "\n".join(
         [
             "",
@@ -246,7 +249,9 @@ def analyze_against(
             'a run of the reference teacher (95% bootstrap CI; "insufficient runs" with fewer '
             f"than {stats.MIN_RUNS} on a side); p: Welch's t-test; mw_p: Mann-Whitney U; *_holm: "
             "Holm-adjusted over this table's comparisons (significant_holm: p_holm < 0.05); "
-            "seeds_needed: runs per side for 80% power at the observed effect.",
+            f"seeds_needed: runs per side for 80% power at the observed effect at {stats.ALPHA} "
+            "(seeds_needed_holm: at the level where a comparison passes this table's Holm "
+            "correction, 0.05 over its number of tests).",
             "",
             markdown_table(rows, columns),
             "",

@@ -141,7 +141,8 @@ def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
     done = sum(r.status == "finished" for r in runs)
     agg_cols = ["teacher", "runs", "tasks", "IQM", "mean", "P(improvement)"]
     fin_cols = ["teacher", "task", "runs", "mean", "std", "baseline_mean", "ratio", "p",
-                "p_holm", "mw_p", "mw_p_holm", "seeds_needed", "significant_holm"]  # fmt: skip
+                "p_holm", "mw_p", "mw_p_holm", "seeds_needed", "seeds_needed_holm",
+                "significant_holm"]  # fmt: skip
     step_cols = ["teacher", "task", "step", "mean", "baseline_mean", "p", "p_holm",
                  "significant_holm"]  # fmt: skip
     parts = [
@@ -165,7 +166,9 @@ def _report(comp, runs, aggregates, final, over_steps, pngs, reps) -> str:
         "p: Welch's t-test; mw_p: Mann-Whitney U (two-sided, exact without ties); *_holm: "
         "Holm-adjusted over every comparison of this table; significant_holm: p_holm < 0.05 "
         "(only these support a claim); seeds_needed: runs per side for a t-test to reach 80% "
-        "power at the observed effect (inf: no effect).",
+        "power at the observed effect at 0.05 (inf: no effect); seeds_needed_holm: the same at "
+        "0.05 over the number of comparisons, where a p passes the Holm correction whatever the "
+        "others' (what a claim needs).",
         "",
         markdown_table(final, fin_cols),
         "",

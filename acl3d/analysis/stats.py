@@ -18,7 +18,9 @@ may hold different numbers of runs.
 * Mann-Whitney U (two-sided; exact without ties): a rank test that assumes no normality. With
   4 runs against 4 its p cannot go below 2/70 = 0.029, so few seeds cannot carry many claims.
 * Seeds needed: the smallest number of runs per side at which a two-sided t-test at 0.05 would
-  reach 80% power for the observed effect (Cohen's d, pooled SD), from the noncentral t.
+  reach 80% power for the observed effect (Cohen's d, pooled SD), from the noncentral t; and
+  the same at `family_alpha`, 0.05 over the number of comparisons, where a p passes Holm's
+  correction whatever the other p-values are (the level a claim in a table of many needs).
 * P(improvement) needs `MIN_RUNS` runs on each side; with fewer it reads `INSUFFICIENT`.
 
 Computed with numpy/scipy rather than by importing rliable, because rliable 1.2.0 only imports
@@ -196,6 +198,13 @@ def mann_whitney(x, y) -> RankTest:
         return RankTest(float("nan"), float("nan"))
     result = sps.mannwhitneyu(x, y, alternative="two-sided", method="auto")
     return RankTest(float(result.statistic), float(result.pvalue))
+
+
+def family_alpha(pvalues) -> float:
+    """`ALPHA` over the number of defined tests of a family: a p below it passes Holm's
+    correction whatever the family's other p-values (Holm asks exactly this of the smallest)."""
+    defined = int(np.isfinite(np.asarray(pvalues, dtype=np.float64)).sum())
+    return ALPHA / max(defined, 1)
 
 
 def seeds_needed(x, y, power: float = 0.8, alpha: float = ALPHA, limit: int = 100_000) -> float:
