@@ -34,7 +34,7 @@ from typing import Protocol
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv, VecEnvWrapper
 
 from acl3d.envs.curriculum_wrapper import INFO_KEY, CurriculumWorker, TaskQueue, played_task
 from acl3d.envs.env_state import restore_wrappers
@@ -253,7 +253,9 @@ class CurriculumVecEnv(VecEnvWrapper):
         try:
             obs, rewards, dones, infos = self.venv.step_wait()
         except (EOFError, ConnectionError) as exc:  # a worker process died without a traceback
-            codes = [p.exitcode for p in getattr(self.venv, "processes", [])]
+            # SB3's workers (the batched env's workers report their own deaths: WorkerCrash)
+            processes = self.venv.processes if isinstance(self.venv, SubprocVecEnv) else []
+            codes = [p.exitcode for p in processes]
             raise WorkerError(f"an environment worker process died (exit codes {codes})") from exc
         if not self._pull:
             raise_worker_errors(infos, "step")

@@ -114,7 +114,7 @@ def _play(predict, venv: VecEnv, tasks, seed: int, episodes_per_task: int) -> Ev
         current[i] = push(i)
     venv.seed(seed)
     obs = venv.reset()
-    raise_worker_errors(getattr(venv, "reset_infos", []), "evaluation reset")
+    raise_worker_errors(venv.reset_infos, "evaluation reset")  # every VecEnv keeps them
     for i in range(n):
         pending[i] = push(i)
     returns = np.full(n_total, np.nan)
