@@ -61,7 +61,9 @@ def test_new_teacher_beside_the_reference(tmp_path, capsys):
         assert float(row["P(improvement)"]) == pytest.approx(wins)
     report = (out / "report.md").read_text()
     assert "## Against each teacher of the reference 'reference-mini'" in report
-    assert "records no provenance: CPU model and versions unknown" in report  # none recorded
+    # neither side has provenance.json: versions from config.yaml (equal), CPU model unknown
+    assert "cpu_model: not recorded by either run, so it may differ" in report
+    assert "torch:" not in report and "records no provenance" not in report
     for figure in ("performance_profile.png", "aggregates.png", "curves_mean_return.png"):
         assert (out / figure).stat().st_size > 0
     # the combined tables hold the reference's teachers and the new one
@@ -72,6 +74,24 @@ def test_new_teacher_beside_the_reference(tmp_path, capsys):
             "riac",
             "covar-gmm",
         }
+
+
+def test_versions_of_runs_without_provenance_come_from_their_config(tmp_path):
+    """The shipped v1 runs predate provenance.json; their config.yaml recorded the versions."""
+    reference = load_runs(REFERENCE)
+    shutil.copytree(NEW, tmp_path / "new")
+    for config in (tmp_path / "new").glob("*/config.yaml"):
+        doc = yaml.safe_load(config.read_text())
+        doc["environment"]["packages"]["torch"] = "2.0.0"
+        config.write_text(yaml.safe_dump(doc))
+    notes = machine_notes(load_runs(tmp_path / "new"), reference, "mini")
+    assert any("torch: '2.0.0' (new) vs '2.13.0+cpu' (reference)" in n for n in notes)
+    with_provenance = tmp_path / "recorded" / "covar-gmm__s0"
+    shutil.copytree(NEW / "covar-gmm__s0", with_provenance)
+    provenance.record(with_provenance, "start")
+    cpu = provenance.cpu_model()
+    notes = machine_notes(load_runs(with_provenance.parent), reference, "mini")
+    assert any(f"cpu_model: {cpu!r} (new) vs 'not recorded' (reference)" in n for n in notes)
 
 
 @pytest.mark.parametrize(

@@ -196,16 +196,38 @@ def against_each(
     return with_holm(with_holm(rows, "p"), "mw_p")
 
 
+NOT_RECORDED = "not recorded"
+
+
+def recorded_machine(run: Run) -> list[dict] | None:
+    """A run's provenance segments; for a run without provenance.json (the shipped v1 runs) one
+    segment from what its config.yaml recorded (`environment`: Python and package versions,
+    commit; its CPU model was not recorded), else None."""
+    segments = provenance.load(run.path)
+    if segments:
+        return segments
+    config = yaml.safe_load((run.path / "config.yaml").read_text()) or {}
+    env = config.get("environment")
+    if not isinstance(env, dict):
+        return None
+    packages = env.get("packages") or {}
+    versions = {name: packages.get(name) for name in provenance.PACKAGES}
+    return [{"cpu_model": NOT_RECORDED, "python": env.get("python"), **versions,
+             "commit": env.get("git_commit"), "platform": env.get("platform")}]  # fmt: skip
+
+
 def machine_notes(new: list[Run], reference: list[Run], label: str) -> list[str]:
-    """Where the new runs' CPU model or versions differ from the reference's (provenance.json;
-    'unknown' for runs that record none, as the shipped v1 runs): on another CPU a run of the
-    same code may diverge by more than the teachers' gaps."""
-    ref = provenance.load(reference[0].path)
+    """Where the new runs' CPU model or versions differ from the reference's (provenance.json,
+    else what config.yaml recorded, `recorded_machine`; 'unknown' for runs that record neither):
+    on another CPU a run of the same code may diverge by more than the teachers' gaps."""
+    ref = recorded_machine(reference[0])
     notes: list[str] = []
     for run in new:
-        for diff in provenance.differences(provenance.load(run.path), ref):
-            if diff not in notes:
-                notes.append(diff)
+        mine = recorded_machine(run)
+        diffs = provenance.differences(mine, ref)
+        if mine and ref and mine[0].get("cpu_model") == ref[0].get("cpu_model") == NOT_RECORDED:
+            diffs.append("cpu_model: not recorded by either run, so it may differ")
+        notes += [d for d in diffs if d not in notes]
     return [f"machine and versions against the reference {label!r}: {n}" for n in notes]
 
 
