@@ -195,6 +195,22 @@ def test_missing_gl_backend_gives_an_actionable_message(tmp_path):
     assert "libosmesa6" in proc.stderr and "import acl3d first" in proc.stderr
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="GLFW needs X11 or Wayland here")
+def test_render_cli_without_a_display_fails_in_one_line_before_writing(tmp_path):
+    hidden = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY", "WAYLAND_DISPLAY")
+    env = {k: v for k, v in os.environ.items() if k not in hidden}
+    env["MUJOCO_GL"] = "glfw"  # MuJoCo's default, which needs a display
+    out = tmp_path / "x.png"
+    args = ["render", "--policy", "random", "--max-steps", "5", "--out", str(out), "--no-progress"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "acl3d", *args], env=env, capture_output=True, text=True, timeout=180
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("acl3d render: error: OpenGL rendering failed with MUJOCO_GL=glfw")
+    assert "apt-get install libegl1 libegl-mesa0" in last and not out.exists()
+
+
 def run_failing(args, env):
     proc = subprocess.run(args, env=env, capture_output=True, text=True, timeout=180)
     assert proc.returncode != 0, f"expected a failure; stdout:\n{proc.stdout}"

@@ -303,6 +303,19 @@ def test_evaluate_and_report_check_their_inputs_first(copy, tmp_path, capsys):
     assert not (run / "report").exists()
 
 
+def test_report_checks_that_it_can_render_before_its_plots(copy, monkeypatch, capsys):
+    from acl3d import rendering
+
+    def no_gl(*args, **kwargs):
+        raise RuntimeError("OpenGL rendering failed with MUJOCO_GL=egl (EGLError: no device)")
+
+    monkeypatch.setattr(rendering, "TrackRenderer", no_gl)
+    run = copy()
+    assert main(["report", str(run)]) == 2
+    one_line_error(capsys, "OpenGL rendering failed", "MUJOCO_GL=egl")
+    assert not (run / "report").exists()
+
+
 # ---------------------------------------------------------------------- the run format
 def fake_run(root: Path, name: str, evals: str | None, teacher: str = "random") -> Path:
     """A run directory as analysis reads it: config.yaml, status.json, evals.csv."""

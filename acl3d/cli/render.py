@@ -127,6 +127,20 @@ class Source:
     title: str
 
 
+def check_offscreen() -> None:
+    """Make and free an offscreen GL context before anything is loaded, played or written: a
+    machine that cannot render fails at once with one line naming the backend and the package
+    to install, not with a traceback after the first outputs."""
+    from acl3d.rendering import TrackRenderer
+
+    try:
+        import mujoco  # loads the backend's library: its failure is worded as a renderer's
+
+        TrackRenderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 64, 64).close()
+    except RuntimeError as exc:  # the backend's failure, as acl3d.rendering words it
+        raise ValueError(str(exc)) from None
+
+
 def resolve_source(target, args) -> Source:
     from acl3d.cli.evaluate import resolve_target
 
@@ -212,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"wrote {args.out}")
         return 0
+    check_offscreen()
     targets = args.compare or [args.model]
     players, tasks, seed = [], None, args.seed
     try:

@@ -20,9 +20,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def check_inputs(run_dir, out, video: bool) -> None:
-    """Read what the report needs (config, teacher dump, model) and check `out` before the first
-    PNG is written: a damaged run fails with the file's name and leaves no partial report."""
+    """Read what the report needs (config, teacher dump, model), check `out` and, for the video,
+    that this machine renders, before the first PNG is written: a damaged run or a missing GL
+    library fails with one line and leaves no partial report."""
     from acl3d.atomic_files import check_creatable_dir
+    from acl3d.cli.render import check_offscreen
     from acl3d.run_format.checkpoints import check_zip
     from acl3d.training.checkpoint import MODEL_MEMBERS
     from acl3d.training.run_dir import RunDir
@@ -40,6 +42,7 @@ def check_inputs(run_dir, out, video: bool) -> None:
             )
         model = run.best_model()
         check_zip(model, POLICY_MEMBERS if is_policy_file(model) else MODEL_MEMBERS)
+        check_offscreen()
 
 
 def run(args) -> int:
