@@ -60,6 +60,16 @@ def test_welch_matches_scipy_and_the_formula():
     assert math.isnan(undefined.p) and not undefined.significant
 
 
+def test_one_run_per_task_has_no_interval():
+    """Resampling a single run gives it back: no CI rather than one of zero width."""
+    alone = stats.aggregate_interval([[16.0], [4.0]], stats.mean, reps=100)
+    assert alone.point == 10.0 and math.isnan(alone.low) and math.isnan(alone.high)
+    assert str(alone) == "10 [no CI]" and alone.text(".1f") == "10.0 [no CI]"
+    assert stats.aggregate_interval([[16.0, 4.0]], stats.mean, reps=100).text(".1f") != (
+        "10.0 [no CI]"
+    )
+
+
 def test_mean_band():
     band = stats.mean_band([0, 1], reps=4000, seed=3)  # resampled means: 0, 0.5, 1
     assert (band.point, band.low, band.high) == (0.5, 0.0, 1.0)

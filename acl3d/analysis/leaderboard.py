@@ -75,7 +75,7 @@ def leaderboard_rows(runs: list[Run], reps: int = stats.DEFAULT_REPS, seed: int 
         for metric, short in _METRICS:
             x = _finals(runs, teacher, metric)
             iqm = stats.aggregate_interval([x], stats.iqm, reps, seed)
-            row[f"{short} IQM [95% CI]"] = f"{iqm.point:.1f} [{iqm.low:.1f}, {iqm.high:.1f}]"
+            row[f"{short} IQM [95% CI]"] = iqm.text(".1f")
             std = f"{x.std(ddof=1):.1f}" if x.size > 1 else "–"  # one seed: no spread
             row[f"{short} mean ± std"] = f"{x.mean():.1f} ± {std}"
             row[f"{short} p Welch (Holm)"] = (

@@ -44,8 +44,14 @@ class Interval:
     low: float
     high: float
 
+    def text(self, spec: str = ".3g") -> str:
+        """'point [low, high]'; 'point [no CI]' where the bounds are undefined (one run)."""
+        if not (np.isfinite(self.low) and np.isfinite(self.high)):
+            return f"{self.point:{spec}} [no CI]"
+        return f"{self.point:{spec}} [{self.low:{spec}}, {self.high:{spec}}]"
+
     def __str__(self) -> str:
-        return f"{self.point:.3g} [{self.low:.3g}, {self.high:.3g}]"
+        return self.text()
 
 
 def _tasks(scores) -> list[np.ndarray]:
@@ -80,10 +86,14 @@ def _resample(tasks: list[np.ndarray], reps: int, rng: np.random.Generator) -> n
 
 
 def aggregate_interval(scores, func=iqm, reps: int = DEFAULT_REPS, seed: int = 0) -> Interval:
-    """`func` of the pooled scores with its stratified-bootstrap 95% CI."""
+    """`func` of the pooled scores with its stratified-bootstrap 95% CI; NaN bounds when every
+    task holds a single run (each replicate would give that run back: a CI of zero width that
+    reads as certainty)."""
     tasks = _tasks(scores)
     rng = np.random.default_rng(seed)
     point = float(func(np.concatenate(tasks)))
+    if all(t.size == 1 for t in tasks):
+        return Interval(point, float("nan"), float("nan"))
     replicates = func(_resample(tasks, reps, rng), axis=1)
     return Interval(point, *_percentiles(replicates))
 
