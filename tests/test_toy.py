@@ -133,6 +133,27 @@ def test_toy_cli_rejects_bad_parameters(capsys):
 
 
 @pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--episodes", "-1", "--episodes=-1; valid: an integer >= 0"),
+        ("--seed", "-1", "--seed=-1; valid: an integer in [0, 2147483647]"),
+        ("--nb-dims", "0", "--nb-dims=0; valid: an integer >= 1"),
+        ("--gif-every", "0", "--gif-every=0; valid: an integer >= 1"),
+        ("--gif", "sampling.txt", "--gif='sampling.txt'; valid: a file path ending in .gif"),
+    ],
+)
+def test_toy_cli_names_a_bad_option_and_its_range_before_any_episode(
+    tmp_path, capsys, monkeypatch, option, value, message
+):
+    monkeypatch.chdir(tmp_path)
+    played = []
+    monkeypatch.setattr("acl3d.cli.toy.run_teacher", lambda *a, **k: played.append(a))
+    assert main(["toy", "--episodes", "10", option, value]) == 2
+    assert capsys.readouterr().err.strip() == f"acl3d toy: error: {message}"
+    assert not played and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
     "state",
     [
         None,

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
+from acl3d.extras import optional_dependency
 from acl3d.teachers import TEACHERS, make
 from acl3d.teachers.expert_knowledge import toy_teacher_params
 from acl3d.teachers.presets import PRESETS, preset_params
@@ -73,7 +75,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gif-every", type=int, default=250, help="episodes per GIF frame")
 
 
+def check_args(args: argparse.Namespace) -> None:
+    """The counts, the seed and the GIF's path, before any episode: a mistake is named with its
+    option and range at once, not after the run (an unwritable or non-GIF --gif used to fail
+    only when the GIF was written)."""
+    from acl3d import validation as check
+    from acl3d.atomic_files import check_creatable_dir
+    from acl3d.training.config import MAX_SEED
+
+    check.integer("--episodes", args.episodes, 0)
+    check.integer("--seed", args.seed, 0, MAX_SEED)
+    for name in ("nb_dims", "nb_cubes", "score_every", "gif_every"):
+        check.integer(f"--{name.replace('_', '-')}", getattr(args, name), 1)
+    check.integer("--irrelevant-dims", args.irrelevant_dims, 0)
+    if args.gif is not None:
+        gif = Path(args.gif)
+        if gif.suffix.lower() != ".gif" or gif.is_dir():
+            raise check.fail("--gif", args.gif, "a file path ending in .gif")
+        check_creatable_dir(gif.parent, "--gif's folder")
+        with optional_dependency("acl3d toy --gif"):
+            import imageio  # noqa: F401  (writes the GIF at the end: missing, say so now)
+
+
 def run(args: argparse.Namespace) -> int:
+    check_args(args)
     env = ToyEnv(
         args.nb_dims,
         args.nb_cubes,
