@@ -111,6 +111,14 @@ def test_episode_and_replicate_counts_are_bounded(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
+def test_analyze_names_its_seed_and_replicates_as_typed(tmp_path, capsys):
+    assert main(["analyze", str(tmp_path), "--seed", "-1"]) == 2
+    one_line_error(capsys, "--seed=-1; valid: an integer >= 0")
+    assert main(["analyze", str(tmp_path), "--reps", "5"]) == 2
+    one_line_error(capsys, "--reps=5; valid: an integer in [100, 200000]")
+    assert not list(tmp_path.iterdir())
+
+
 # ---------------------------------------------------------------------- 6: names
 def test_an_out_name_too_long_for_the_filesystem_is_one_line(tmp_path, capsys):
     out = tmp_path / ("x" * 300)
