@@ -198,6 +198,23 @@ def test_values_only_the_environment_checks_are_refused_before_anything_is_writt
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--budget", "-1"], "--budget=-1.0; valid: a finite number > 0"),
+        (["--budget", "nan"], "--budget=nan; valid: a finite number > 0"),
+        (["--seeds", "0"], "--seeds=0; valid: an integer >= 1"),
+        (["--retries", "-1"], "--retries=-1; valid: an integer >= 0"),
+        (["--max-parallel", "0"], "--max-parallel=0; valid: an integer >= 1"),
+    ],
+)
+def test_numbers_are_named_as_typed_whatever_the_executor(args, message, tmp_path, capsys):
+    out = tmp_path / "camp"
+    assert main(["campaign", "run", "quick", "--out", str(out), *args]) == 2  # the ray executor
+    err = capsys.readouterr().err.strip()
+    assert err == f"acl3d campaign: error: {message}" and not out.exists()
+
+
 def test_spec_mistakes_are_one_line_before_anything_is_written(tmp_path, capsys):
     long_label = "a" * 300
     specs = {

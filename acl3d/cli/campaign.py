@@ -60,6 +60,20 @@ def _scaling_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _check_numbers(args) -> None:
+    """The numbers typed, named as typed, before the executor or the spec is looked at: a
+    negative --budget is named even where Ray is not installed."""
+    from acl3d import validation as check
+
+    check.real("--budget", args.budget, 0, exclusive_low=True)
+    if args.seeds is not None:
+        check.integer("--seeds", args.seeds, 1)
+    if args.action == "run":
+        check.integer("--retries", args.retries, 0)
+        if args.max_parallel is not None:
+            check.integer("--max-parallel", args.max_parallel, 1)
+
+
 def _spec(args):
     from acl3d.campaign.options import parse_set
     from acl3d.campaign.spec import load_spec
@@ -125,6 +139,7 @@ def _show(args) -> int:
 
     from acl3d.campaign.spec import check_runs
 
+    _check_numbers(args)
     spec = _spec(args)
     runs = spec.expand()
     check_runs(runs)
@@ -139,7 +154,8 @@ def _show(args) -> int:
 def _run(args) -> int:
     from acl3d.campaign.executors import check_executor
 
-    check_executor(args.executor, args.max_parallel, args.address)  # first: names a missing extra
+    _check_numbers(args)
+    check_executor(args.executor, args.max_parallel, args.address)  # then: names a missing extra
     from acl3d.campaign.runner import run_campaign
 
     spec = _spec(args)
