@@ -319,3 +319,10 @@ def test_runs_on_the_many_world_simulation_evaluate_ten_times_by_default():
         500_000
     )
     assert TrainConfig(student="ppo", steps=20_000_000).effective_eval_every == 500_000
+
+
+def test_warp_loads_its_kernel_modules_without_a_line_each():
+    from acl3d.sim.warp_backend import import_warp
+
+    warp, _ = import_warp()
+    assert warp.config.log_level >= warp.LOG_WARNING  # 1.19 dropped config.quiet

@@ -48,7 +48,7 @@ def import_warp():
     with optional_dependency("the MuJoCo Warp backend (many worlds on a GPU)"):
         warp = importlib.import_module("warp")
         mjw = importlib.import_module("mujoco_warp")
-    warp.config.quiet = True
+    warp.config.log_level = warp.LOG_WARNING  # not a line per kernel module loaded
     return warp, mjw
 
 
