@@ -1,22 +1,24 @@
 """Replay a finished torch-native run's teacher load on this machine: the teacher's share of a
-run measured without the GPU the run trained on.
+run measured without the GPU the run trained on, and what rounds of teacher calls save.
 
-A many-world run calls its curriculum once a step: the controller learns the episodes that
-ended and draws the next tasks of the worlds that reset (`TorchRun`'s `_Curriculum.sync`). The
-run's `episodes.csv` holds every episode with its step and task, so its calls can be played again
-in order, through a controller built from the run's own config, with the run's cadence between
-calls (the seconds per step its `status.json` recorded for collecting and updating, slept here).
-Printed: the teacher's wall seconds, its CPU seconds (process time of this process: what the
-teacher computes), the rest (waiting, mostly for a GMM refit not done when its episode came, or
-for the CPU on a loaded machine), and the share of the run's wall time the replayed teacher
-would take against the share the run recorded (the ratio says how much faster or slower the
-teacher is here than on the run's host).
+A torch-native run hands its worlds' finished episodes to its curriculum at each step that ends
+one (`CurriculumRounds.sync`), which learns them and draws the resetting worlds' next tasks, at
+every such step or, with a reserve of tasks drawn ahead, in rounds. The run's `episodes.csv`
+holds every episode with its step and task, so these syncs can be played again in order, through
+a controller built from the run's own config, with the run's cadence between steps (the seconds
+per step its `status.json` recorded for collecting and updating, slept here). For each
+`--reserve` (default: the run's own rule, and 0), on a fresh controller: the teacher calls
+(rounds), the teacher's wall seconds and the share of the run's wall time the replayed teacher
+would take, against what the run recorded on its own host; then the CPU seconds of the whole
+replay (this process: the teacher's computing; the rest of the wall time is waiting, for a GMM
+refit not done in time or, on a loaded machine, for the CPU).
 
-    python scripts/bench_teacher_load.py RUN [--setup-seconds 8] [--no-cadence] [--profile]
+    python scripts/bench_teacher_load.py RUN [--reserve 0 --reserve 64] [--setup-seconds 8]
+        [--no-cadence] [--profile]
 
 `--setup-seconds`: the time between building the teacher and the first step (a run builds its
 worlds after its teacher; a GMM teacher's refit workers start meanwhile). Run it alone on the
-machine: the wait column is noise on a loaded one.
+machine: the wait is noise on a loaded one.
 """
 
 from __future__ import annotations
@@ -32,9 +34,11 @@ import numpy as np
 from acl3d.envs.episode_statistics import EpisodeBatch
 from acl3d.run_format.status import read_status
 from acl3d.run_format.tables import read_csv
-from acl3d.training.config import TrainConfig
+from acl3d.training.config import TrainConfig, uses_many_worlds
 from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, probe_env, probe_task_space
+from acl3d.training.torch_student.curriculum_rounds import CurriculumRounds, reserve_for
+from acl3d.training.torch_student.phase_times import PhaseTimes
 
 
 def step_batches(run: RunDir, task_names: list[str]) -> list[EpisodeBatch]:
@@ -62,34 +66,40 @@ def step_batches(run: RunDir, task_names: list[str]) -> list[EpisodeBatch]:
     return batches
 
 
-def replay(controller, batches, n_envs: int, gap: float) -> tuple[float, float]:
-    """(wall, CPU) seconds inside the controller over the run's calls, `gap` seconds apart."""
-    wall = cpu = 0.0
-    for k, batch in enumerate([None, *batches]):
-        if k and gap:
-            time.sleep(gap)
-        w, c = time.perf_counter(), time.process_time()
-        if batch is None:  # the reset of every world before the first step
-            controller.sample_training_tasks(n_envs)
-        else:
-            controller.record_episodes(batch)
-            controller.sample_training_tasks(len(batch))
-        wall += time.perf_counter() - w
-        cpu += time.process_time() - c
-    return wall, cpu
+def replay(sync: CurriculumRounds, batches, n_envs: int, gap: float) -> tuple[int, float]:
+    """(teacher calls, CPU seconds of the replay) over the run's syncs, `gap` seconds apart (a
+    sleep: no CPU; the CPU clock is read once around the whole replay, as it is slow to read)."""
+    calls, draw = 0, sync.controller.sample_training_tasks
+
+    def counted(n):
+        nonlocal calls
+        calls += 1
+        return draw(n)
+
+    sync.controller.sample_training_tasks = counted
+    cpu = time.process_time()
+    sync.sync(EpisodeBatch.empty(sync.controller.task_space.dim), np.arange(n_envs))
+    for batch in batches:
+        time.sleep(gap)
+        sync.sync(batch, batch.env_ids)
+    return calls, time.process_time() - cpu
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("run", type=Path, help="a finished run directory of the rsl-ppo student")
+    p.add_argument("--reserve", type=int, action="append", help="tasks drawn ahead (repeat)")
     p.add_argument("--setup-seconds", type=float, default=8.0)
     p.add_argument("--no-cadence", action="store_true", help="calls back to back")
     p.add_argument("--profile", action="store_true", help="cProfile of the replay, by own time")
     args = p.parse_args()
+    if any(r < 0 for r in args.reserve or []):
+        p.error(f"--reserve: {args.reserve} (allowed: integers >= 0)")
     if args.setup_seconds < 0:
         p.error(f"--setup-seconds: {args.setup_seconds} is negative (allowed: >= 0)")
 
     run = RunDir(args.run)
+    recorded_config = TrainConfig.from_dict(run.read_config())  # maybe on a GPU this host lacks
     config = TrainConfig.from_dict({**run.read_config(), "device": "cpu"})
     status = read_status(run.path)
     phases = status.fields.get("seconds_by_phase") if status else None
@@ -104,33 +114,36 @@ def main() -> None:
     vector_steps = config.steps / config.n_envs
     gap = 0.0 if args.no_cadence else (phases["collect"] + phases["update"]) / vector_steps
 
-    controller = build_controller(config, task_space, profile)
-    time.sleep(args.setup_seconds)
-    profiler = cProfile.Profile() if args.profile else None
-    if profiler:
-        profiler.enable()
-    wall, cpu = replay(controller, batches, config.n_envs, gap)
-    if profiler:
-        profiler.disable()
-
     recorded = phases["teacher"]
     others = sum(phases.values()) - recorded
-    episodes = sum(len(b) for b in batches)
     print(
-        f"{run.path.name}: teacher {config.teacher}, {config.n_envs} worlds, {len(batches) + 1} "
-        f"calls, {episodes} episodes, {gap * 1e3:.1f} ms between calls"
-    )
-    total = others + recorded
-    print(
-        f"recorded on the run's host: teacher {recorded:.2f} s, {100 * recorded / total:.2f}% of {total:.1f} s"
+        f"{run.path.name}: teacher {config.teacher}, {config.n_envs} worlds, {len(batches)} steps "
+        f"ending episodes, {sum(len(b) for b in batches)} episodes, {gap * 1e3:.1f} ms a step"
     )
     print(
-        f"replayed here: teacher {wall:.2f} s (CPU {cpu:.2f} s, waiting {wall - cpu:.2f} s), "
-        f"{100 * wall / (others + wall):.2f}% of the run's other phases + it; "
-        f"{wall / recorded:.2f}x the recorded"
+        f"  recorded on the run's host: teacher {recorded:.2f} s, "
+        f"{100 * recorded / (others + recorded):.2f}% of {others + recorded:.1f} s"
     )
-    if profiler:
-        pstats.Stats(profiler).sort_stats("tottime").print_stats(20)
+    own = reserve_for(config.n_envs, uses_many_worlds(recorded_config))
+    for reserve in args.reserve or [own, 0]:
+        times = PhaseTimes()
+        sync = CurriculumRounds(build_controller(config, task_space, profile), times, reserve)
+        time.sleep(args.setup_seconds)
+        profiler = cProfile.Profile() if args.profile else None
+        if profiler:
+            profiler.enable()
+        calls, cpu = replay(sync, batches, config.n_envs, gap)
+        if profiler:
+            profiler.disable()
+        wall = times.seconds["teacher"]
+        print(
+            f"  replayed here, reserve {reserve}{' (the run rule)' if reserve == own else ''}: "
+            f"{calls} teacher calls, teacher {wall:.2f} s, {100 * wall / (others + wall):.2f}% "
+            f"of the run's other phases + it ({wall / recorded:.2f}x the recorded); the "
+            f"replay's CPU {cpu:.2f} s"
+        )
+        if profiler:
+            pstats.Stats(profiler).sort_stats("tottime").print_stats(15)
 
 
 if __name__ == "__main__":  # the refit workers start in processes that import this file

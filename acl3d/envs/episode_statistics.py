@@ -62,6 +62,17 @@ class EpisodeBatch:
         return EpisodeBatch(**{f.name: _to_numpy(getattr(self, f.name)) for f in fields(self)})
 
     @staticmethod
+    def concat(batches: list[EpisodeBatch]) -> EpisodeBatch:
+        """The numpy batches one after the other, as one."""
+        if len(batches) == 1:
+            return batches[0]
+        return EpisodeBatch(**{
+            f.name: None if getattr(batches[0], f.name) is None
+            else np.concatenate([getattr(b, f.name) for b in batches])
+            for f in fields(EpisodeBatch)
+        })  # fmt: skip
+
+    @staticmethod
     def empty(task_dim: int) -> EpisodeBatch:
         """No episodes (numpy), e.g. for the first `sync` before any episode ran."""
         z = np.zeros(0, dtype=np.int64)
@@ -302,14 +313,7 @@ class _Numpy:
         return EpisodeBatch.empty(task_dim)
 
     def gather(self, pending) -> EpisodeBatch:
-        batches = [b for _, b in pending]
-        if len(batches) == 1:
-            return batches[0]
-        return EpisodeBatch(**{
-            f.name: None if getattr(batches[0], f.name) is None
-            else np.concatenate([getattr(b, f.name) for b in batches])
-            for f in fields(EpisodeBatch)
-        })  # fmt: skip
+        return EpisodeBatch.concat([b for _, b in pending])
 
 
 class _Torch:

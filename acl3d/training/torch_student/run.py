@@ -5,10 +5,13 @@ evals.csv, evals_tasks.csv, TensorBoard under RUN/tb, checkpoints, final_model.z
 dump), so `analyze`, `report`, `render --model` and campaigns read it unchanged. The loop:
 a rollout of `num_steps_per_env` steps on every world, one PPO update, then the periodic work
 (evaluation, the episode log, a checkpoint) at the first update at or past each multiple of its
-period, and once more at the end. Finished episodes reach the teacher during the step that ends
-them, before their world's next task is drawn.
+period, and once more at the end. The teacher learns finished episodes and draws the worlds'
+next tasks in rounds (`CurriculumRounds`): on the CPU batched env at every step that ends an
+episode, before the world's next task is drawn; on the many-world simulation a round draws
+tasks ahead and learns the episodes of several steps at once.
 
-A checkpoint holds every world's running episode, the last observations, the student (weights,
+A checkpoint holds every world's running episode, the last observations, the tasks drawn ahead
+and the episodes waiting for the next round, the student (weights,
 normalisers, optimiser, adaptive learning rate, reward statistics), the controller and the
 global RNG states (CUDA's too), so a run killed at any point continues from its newest
 checkpoint exactly as if it had not stopped (on the CPU; on a GPU it continues the run).
@@ -38,29 +41,12 @@ from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
 from acl3d.training.student_settings import student_params
 from acl3d.training.torch_student import rsl_ppo
+from acl3d.training.torch_student.curriculum_rounds import CurriculumRounds, reserve_for
 from acl3d.training.torch_student.eval_queue import EvaluationQueue, Pending
 from acl3d.training.torch_student.evaluation import ManyWorldEvaluator, WorldEvaluator
 from acl3d.training.torch_student.phase_times import PhaseTimes
 
 EPISODE_COLUMNS = ("step", "worker", "return", "length", "success", "truncated")
-
-
-class _Curriculum:
-    """The worlds' `CurriculumSync`: the controller learns every finished episode once, then
-    picks the next tasks of the worlds that reset; finished episodes wait in `finished` for the
-    episode log."""
-
-    def __init__(self, controller, times: PhaseTimes):
-        self.controller, self.finished, self.episodes_done = controller, [], 0
-        self.times = times
-
-    def sync(self, finished, env_ids) -> np.ndarray:
-        with self.times.phase("teacher"):
-            if len(finished):
-                self.controller.record_episodes(finished)
-                self.episodes_done += len(finished)
-                self.finished.append(finished)
-            return self.controller.sample_training_tasks(len(env_ids))[0]
 
 
 class TorchRun:
@@ -92,7 +78,8 @@ class TorchRun:
         if self.warp:
             check_many_worlds(config.env)
         self.times = PhaseTimes()
-        self.curriculum = _Curriculum(self.controller, self.times)
+        reserve = reserve_for(config.n_envs, self.warp)
+        self.curriculum = CurriculumRounds(self.controller, self.times, reserve)
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
         self.steps: int | None = None  # the steps trained, once provenance.json has its segment
         self.pending: list[Pending] = []  # evaluations a checkpoint left waiting
@@ -153,6 +140,7 @@ class TorchRun:
         runtime = load_state(folder / "runtime")
         self.controller.load_state_dict(load_state(folder / "controller"))
         self.env.set_state(runtime["env"])
+        self.curriculum.load_state(runtime.get("curriculum"))
         progress = load_state(folder / "progress")
         # a checkpoint of the last step may follow that step's evaluation: not done twice
         self.last_eval = int(progress.get("last_eval", -1))
@@ -243,6 +231,7 @@ class TorchRun:
             self._log_episodes(steps)
             if last_ckpt != steps:
                 self._checkpoint(steps, obs)
+            self.curriculum.learn_waiting()  # after the checkpoint: a resume finds them waiting
             self._save_policy(self.run.final_model)
         if c.verbose:
             print(f"[acl3d] wall time by phase: {times.summary()}", flush=True)
@@ -297,7 +286,11 @@ class TorchRun:
                  "pending_evaluations": self.evaluations.state()},
                 folder / "student.pt",
             )  # fmt: skip
-            runtime = {"env": self.env.get_state(), "last_obs": obs.cpu().numpy()}
+            runtime = {
+                "env": self.env.get_state(),
+                "last_obs": obs.cpu().numpy(),
+                "curriculum": self.curriculum.state(),
+            }
             save_state(folder / "runtime", runtime)
             save_state(folder / "controller", self.controller.state_dict())
             save_state(folder / "rng", ckpt.rng_state())
@@ -346,6 +339,7 @@ def train_run(config: TrainConfig, run: RunDir, resume_from, target: int, overwr
             "checkpoint_every": config.effective_checkpoint_every,
             "periodical_samples_every": config.effective_periodical_samples,
             "exclude_exploratory": False,
+            "teacher_reserve": torch_run.curriculum.reserve,
             "nb_test_episodes": torch_run.controller.nb_test_episodes,
             "eval_worlds": min(
                 len(torch_run.controller.test_tasks()), config.eval_envs or MAX_ENVS
