@@ -146,6 +146,9 @@ def test_export_of_a_real_run(tmp_path):
     planned = [{"name": f"random__s{i}", "labels": {"teacher": "random", "seed": i}}
                for i in (0, 1)]  # fmt: skip
     (tmp_path / "camp" / "campaign.yaml").write_text(yaml.safe_dump({"runs": planned}))
+    provenance.close(run_dir, "interrupted", 128)  # as if stopped at step 128, then resumed
+    provenance.record(run_dir, "resume", step=128, device="cpu")
+    provenance.close(run_dir, "finished", 256)
     names = export_campaign(tmp_path / "camp", tmp_path / "exported", "mini")
     assert names == ["random__s0"]
     got = tmp_path / "exported" / "random__s0"
@@ -182,8 +185,10 @@ def test_export_of_a_real_run(tmp_path):
     sizes = sum(p.stat().st_size for p in got.iterdir())
     assert doc["bytes"] == sizes and doc["thinned"] == {}
     assert doc["planned_runs"] == {"random": 2}  # what the campaign was to run
-    (segment,) = provenance.load(run_dir)
+    segment, resume = provenance.load(run_dir)
     assert doc["hardware"]["runs_on"] == [f"{segment['cpu_model']} · {segment['device']}"]
+    assert doc["resumed"] == {"random__s0": 1}
+    assert doc["dirty_tree"] == (["random__s0"] if segment["dirty"] or resume["dirty"] else [])
     assert missing_runs(tmp_path / "exported", load_runs(got)) == ["random (1 of 2 seeds)"]
     # the exported run is read like the original one
     (original,), (exported,) = load_runs(run_dir), load_runs(got)

@@ -132,6 +132,8 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         shutil.rmtree(out)  # an export replaces the previous one of that protocol as a whole
     out.mkdir(parents=True)
     environments, thinned, machines = [], {}, set()
+    resumed: dict[str, int] = {}  # run -> times it was interrupted and resumed
+    dirty: list[str] = []  # runs with a segment started from a tree with uncommitted changes
     for run in finished:
         dest = out / run.path.name
         dest.mkdir()
@@ -144,8 +146,13 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         steps = int(config.get("resolved", {}).get("steps") or config["config"]["steps"])
         _episodes_summary(run.path, steps, dest)
         thinned.update(_curriculum_files(run.path, dest))
-        for segment in provenance.load(run.path) or []:
+        segments = provenance.load(run.path) or []
+        for segment in segments:
             machines.add(f"{segment.get('cpu_model')} · {segment.get('device')}")
+        if provenance.interruptions(segments):
+            resumed[run.path.name] = provenance.interruptions(segments)
+        if any(segment.get("dirty") for segment in segments):
+            dirty.append(run.path.name)
     manifest = next(root.rglob("campaign.yaml"), None)
     campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
     planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
@@ -165,6 +172,8 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
         },
         "packages": environments[0].get("packages", {}),
         "git_commits": sorted({str(e.get("git_commit")) for e in environments}),
+        "resumed": resumed,  # from each run's provenance.json: reviewers see them at a glance
+        "dirty_tree": dirty,
         "bytes": shipped_bytes(out),  # the runs' files, before this one
         "thinned": thinned,
         "planned_runs": planned,
