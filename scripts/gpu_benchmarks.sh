@@ -13,9 +13,10 @@
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
-#   scripts/gpu_benchmarks.sh learn OUT [SEEDS]
-#                                          # stump-v2's Random and ALP-GMM cells, SEEDS seeds
-#                                          # each, one after the other (campaign run + export)
+#   scripts/gpu_benchmarks.sh learn OUT [SEED...]
+#                                          # stump-v2's Random and ALP-GMM cells of these seeds
+#                                          # (default 0 1), one after the other (campaign run +
+#                                          # export); a later call with other seeds adds cells
 #   scripts/gpu_benchmarks.sh summary OUT  # every run's last evaluation and phases
 #   scripts/gpu_benchmarks.sh pack OUT     # OUT's results in one file, OUT/results.tgz: every
 #                                          # run without checkpoints and TensorBoard files, its
@@ -80,12 +81,15 @@ repeat)  # same seed twice, and the same run stopped at 500k and resumed, side b
     python3 scripts/compare_runs.py "$out/runs/repeat-a" "$out/runs/repeat-$other"
   done | tee "$out/repeat.txt"
   ;;
-learn)  # stump-v2's Random and ALP-GMM cells, seeds 0..SEEDS-1, one at a time (runs side by
+learn)  # stump-v2's Random and ALP-GMM cells of the given seeds, one at a time (runs side by
   # side time-slice the GPU: four at once ran slower in all than one alone), then exported
-  seeds=${3:-2}
+  shift 2
+  seeds=("$@") only=()
+  [ ${#seeds[@]} -eq 0 ] && seeds=(0 1)
+  for seed in "${seeds[@]}"; do only+=(--only "seed=$seed"); done
   python3 -m acl3d campaign run stump-v2 --out "$out/stump-v2" --executor local \
-    --max-parallel 1 --only teacher=random --only teacher=alp-gmm --seeds "$seeds" \
-    >"$out/learn.txt" 2>&1
+    --max-parallel 1 --only teacher=random --only teacher=alp-gmm "${only[@]}" \
+    >>"$out/learn.txt" 2>&1
   python3 -m acl3d campaign export "$out/stump-v2" --protocol stump-v2 --out "$out/export" \
     >>"$out/learn.txt" 2>&1
   ;;
