@@ -153,6 +153,16 @@ def test_toy_cli_names_a_bad_option_and_its_range_before_any_episode(
     assert not played and not list(tmp_path.iterdir())
 
 
+def test_toy_cli_without_the_gif_packages_says_so_before_any_episode(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imageio", None)  # the core install, without [train]
+    played = []
+    monkeypatch.setattr("acl3d.cli.toy.run_teacher", lambda *a, **k: played.append(a))
+    assert main(["toy", "--episodes", "10", "--gif", str(tmp_path / "x.gif")]) == 1
+    err = capsys.readouterr().err
+    assert "acl3d toy --gif needs" in err and 'pip install "acl3d[train]"' in err
+    assert not played and not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize(
     "state",
     [

@@ -93,8 +93,9 @@ def check_args(args: argparse.Namespace) -> None:
         if gif.suffix.lower() != ".gif" or gif.is_dir():
             raise check.fail("--gif", args.gif, "a file path ending in .gif")
         check_creatable_dir(gif.parent, "--gif's folder")
-        with optional_dependency("acl3d toy --gif"):
-            import imageio  # noqa: F401  (writes the GIF at the end: missing, say so now)
+        with optional_dependency("acl3d toy --gif", "train"):  # drawn and written at the end
+            import imageio  # noqa: F401
+            import matplotlib  # noqa: F401
 
 
 def run(args: argparse.Namespace) -> int:
