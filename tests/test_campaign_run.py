@@ -144,8 +144,10 @@ def test_campaign_dir_holding_another_campaign_is_refused(tmp_path):
     camp.prepare(more_seeds, more_seeds.expand(), {})  # a campaign may grow
     assert [r["name"] for r in camp.read()["runs"]] == [r.name for r in more_seeds.expand()]
     _mark_started(camp.run_dir("random__s1"))
-    with pytest.raises(ValueError, match=r"\['random__s1'\] are not in this one"):
-        camp.prepare(spec, spec.expand(), {})  # nor lose a run that started
+    camp.prepare(spec, spec.expand(), {})  # fewer seeds: a run that started is not lost
+    assert [r["name"] for r in camp.read()["runs"]] == ["random__s0", "random__s1", "alp-gmm__s0"]
+    assert camp.read()["spec"]["seeds"] == [0, 1]
+    manifest = camp.manifest.read_bytes()
     for bad, message in [
         ({"executor": "slurm"}, "executor 'slurm' unknown"),
         ({"executor": "local", "max_parallel": 0}, "max_parallel must be an integer >= 1"),
@@ -154,4 +156,29 @@ def test_campaign_dir_holding_another_campaign_is_refused(tmp_path):
     ]:
         with pytest.raises(ValueError, match=message):  # refused before the directory changes
             run_campaign(load_spec("quick").scaled(seeds=3), tmp_path, **bad)
-    assert len(camp.read()["runs"]) == 4
+    assert camp.manifest.read_bytes() == manifest
+
+
+def test_a_selection_of_cells_adds_to_the_campaign_and_keeps_its_started_runs(tmp_path):
+    """`--only` runs some cells of a campaign in its directory (a cell re-run, or cells added
+    session by session); the runs it leaves out stay, but a selection with other options is
+    another campaign."""
+    from acl3d.cli.campaign import narrowed
+
+    whole = load_spec("quick").scaled(seeds=2, sets={**TINY, "steps": 512})
+    camp = CampaignDir(tmp_path)
+    first = narrowed(whole, ["teacher=random", "seed=0"])
+    camp.prepare(first, first.expand(), {})
+    _mark_started(camp.run_dir("random__s0"))
+    second = narrowed(whole, ["seed=1"])
+    camp.prepare(second, second.expand(), {})
+    doc = camp.read()
+    assert [r["name"] for r in doc["runs"]] == ["random__s0", "random__s1", "alp-gmm__s1"]
+    assert doc["spec"]["seeds"] == [0, 1] and set(doc["spec"]["grid"]["teacher"]) == {
+        "random",
+        "alp-gmm",
+    }
+    longer = narrowed(load_spec("quick").scaled(seeds=2, sets={**TINY, "steps": 1024}), ["seed=1"])
+    with pytest.raises(ValueError, match=r"started runs \['random__s0'\] are not in this one"):
+        camp.prepare(longer, longer.expand(), {})
+    assert [r["name"] for r in camp.read()["runs"]] == [r["name"] for r in doc["runs"]]

@@ -7,7 +7,8 @@
 
 Running the same campaign again into the same directory continues it: finished runs are
 skipped, runs with a checkpoint resume from it, the rest start afresh. A campaign may grow
-(more seeds: its runs a superset of the directory's), never change. Each run gets
+(more seeds: its runs a superset of the directory's) or run a selection of its cells (`--only`,
+the other started runs staying in the manifest), never change a started run. Each run gets
 `1 + retries` attempts per invocation.
 """
 
@@ -57,8 +58,9 @@ class CampaignDir:
 
     def prepare(self, spec: CampaignSpec, runs: list[RunSpec], invocation: dict) -> None:
         """Write the manifest, or check that the directory holds this campaign or one it may
-        become: more runs, or other options for runs that never started (a corrected command
-        after a start whose runs were all refused)."""
+        become: more runs, other options for runs that never started (a corrected command after
+        a start whose runs were all refused), or a selection of its cells (`--only`): the started
+        runs it leaves out stay in the manifest, its spec covering the labels and seeds of both."""
         doc = {
             "spec": spec.to_dict(),
             "invocation": invocation,
@@ -66,16 +68,30 @@ class CampaignDir:
         }
         if self.manifest.exists():
             old = self.read()
+            new = {r["name"]: r for r in doc["runs"]}
             started = [r for r in old["runs"] if (self.run_dir(r["name"]) / "config.yaml").exists()]
-            changed = sorted({name for name, _ in _comparable(started) - _comparable(doc["runs"])})
-            if changed:
+            kept = [r for r in started if r["name"] not in new]
+            changed = sorted(
+                {name for name, _ in _comparable(started) - _comparable(doc["runs"]) if name in new}
+            )
+            merged = _merged_spec(old["spec"], doc["spec"]) if kept else doc["spec"]
+            if changed or merged is None:
+                names = changed or [r["name"] for r in kept]
                 raise ValueError(
                     f"{str(self.path)!r} holds campaign {old['spec']['name']!r} whose started "
-                    f"runs {changed[:3]}{' ...' if len(changed) > 3 else ''} are not in this one "
+                    f"runs {names[:3]}{' ...' if len(names) > 3 else ''} are not in this one "
                     "or have other options; continue it with the same spec and options (more "
-                    "--seeds may be added), or choose another --out"
+                    "--seeds may be added, --only may select some of its cells), or choose "
+                    "another --out"
                 )
-            if _comparable(old["runs"]) == _comparable(doc["runs"]):
+            if kept:  # in the order of the campaign both make up
+                order = [r.name for r in CampaignSpec.from_dict(merged).expand()]
+                doc["spec"] = merged
+                doc["runs"] = sorted(
+                    [*kept, *doc["runs"]],
+                    key=lambda r: order.index(r["name"]) if r["name"] in order else len(order),
+                )
+            if _comparable(old["runs"]) == _comparable(doc["runs"]) and old["spec"] == merged:
                 return
         self.path.mkdir(parents=True, exist_ok=True)
         tmp = self.manifest.with_name(MANIFEST + ".tmp")
@@ -123,6 +139,17 @@ def check_environments(runs: list[RunSpec]) -> None:
                 env.close()
         except ValueError as exc:
             raise ValueError(f"run {run.name}: {exc}") from None
+
+
+def _merged_spec(old: dict, new: dict) -> dict | None:
+    """The spec of both invocations when they select cells of one campaign (the same name,
+    base, grid and exclusions): the cells and seeds of either; None when they are two
+    campaigns."""
+    if any(old.get(key) != new.get(key) for key in ("name", "base", "grid", "exclude")):
+        return None
+    a, b = old.get("only") or {}, new.get("only") or {}
+    only = {axis: a[axis] + [x for x in b[axis] if x not in a[axis]] for axis in a if axis in b}
+    return {**new, "only": only, "seeds": sorted({*old["seeds"], *new["seeds"]})}
 
 
 def _comparable(runs: list[dict]) -> set:

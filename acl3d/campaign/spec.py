@@ -47,7 +47,7 @@ STEP_COUNTS = (
 )
 # Axes named first in run names, in this order; other axes follow in spec order.
 NAME_ORDER = ("teacher", "env", "body", "student", "criterion", "expert_knowledge")
-_SPEC_KEYS = {"name", "description", "base", "grid", "seeds", "exclude", "baseline"}
+_SPEC_KEYS = {"name", "description", "base", "grid", "seeds", "exclude", "baseline", "only"}
 
 
 @dataclass(frozen=True)
@@ -68,6 +68,9 @@ class CampaignSpec:
     seeds: list[int] = field(default_factory=lambda: [0])
     exclude: list[dict[str, Any]] = field(default_factory=list)
     baseline: str = "random"
+    # the cells selected (`--only`): axis -> the labels kept; the runs keep the names they
+    # have in the whole campaign
+    only: dict[str, list[str]] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -89,6 +92,7 @@ class CampaignSpec:
             seeds=_seed_list(doc.get("seeds", 1), f"{where}: seeds"),
             exclude=_rule_list(doc.get("exclude"), f"{where}: exclude"),
             baseline=str(doc.get("baseline", "random")),
+            only={str(k): [str(v) for v in vs] for k, vs in (doc.get("only") or {}).items()},
         )
         spec.check(where)
         return spec
@@ -99,6 +103,9 @@ class CampaignSpec:
         for axis, values in self.grid.items():
             for _, _, options in _axis_entries(axis, values, f"{where}: grid.{axis}"):
                 check_options(options, f"{where}: grid.{axis}")
+        for axis in self.only:
+            if axis not in self.grid:
+                raise ValueError(f"{where}: only.{axis} is not an axis of the grid")
         for i, rule in enumerate(_rule_list(self.exclude, f"{where}: exclude")):
             if not isinstance(rule, dict) or not rule:
                 raise ValueError(f"{where}: exclude[{i}] must be a non-empty mapping, got {rule!r}")
@@ -151,6 +158,8 @@ class CampaignSpec:
             for key in NAME_ORDER:  # the run's actual values, for analysis and exclusion
                 if key not in labels and key in options:
                     labels[key] = options[key]
+            if any(str(labels[a]) not in kept for a, kept in self.only.items()):
+                continue
             for seed in self.seeds:
                 run_labels = {**labels, "seed": seed}
                 if any(_matches(rule, run_labels, options) for rule in self.exclude):

@@ -88,7 +88,7 @@ def narrowed(spec, rules: list[str]):
     the labels of one axis add up (`--only teacher=random --only teacher=alp-gmm`)."""
     import dataclasses
 
-    grid, seeds = dict(spec.grid), list(spec.seeds)
+    grid, seeds = spec.grid, list(spec.seeds)
     wanted: dict[str, list[str]] = {}
     for rule in rules:
         axis, sep, label = rule.partition("=")
@@ -107,17 +107,10 @@ def narrowed(spec, rules: list[str]):
                 raise ValueError(f"--only {axis}={label!r}: not in {spec.name}; {axis} is one "
                                  f"of {', '.join(labels)}")  # fmt: skip
         wanted.setdefault(axis, []).append(label)
-    for axis, labels in wanted.items():
-        if axis == "seed":
-            seeds = sorted({int(label) for label in labels})
-            continue
-        values = grid[axis]
-        grid[axis] = (
-            {k: v for k, v in values.items() if k in labels}
-            if isinstance(values, dict)
-            else [v for v in values if str(v) in labels]
-        )
-    return dataclasses.replace(spec, grid=grid, seeds=seeds)
+    only = {axis: labels for axis, labels in wanted.items() if axis != "seed"}
+    if "seed" in wanted:
+        seeds = sorted({int(label) for label in wanted["seed"]})
+    return dataclasses.replace(spec, seeds=seeds, only={**spec.only, **only})
 
 
 def run(args) -> int:
