@@ -75,7 +75,7 @@ FAST = {
         "generator_hidden": (32, 32),
         "discriminator_hidden": (32, 32),
         "nb_pretrain_samples": 200,
-        "pretrain_iters": 50,
+        "pretrain_iters": 500,  # the default: at 50 the generator is half pretrained (below)
         "gan_train_iters": 25,
         "batch_size": 32,
         "update_size": 40,
@@ -126,24 +126,64 @@ def run(name: str, episodes: int, seed: int = 0, level: str = "low", rate: float
     return np.array(difficulties), np.array(skills), np.array(exploratory)
 
 
+SEEDS = (0, 1, 2)
+MASTERED = 0.99  # the learner's skill at which every task of the space succeeds
+
+
+def movement(name, episodes, seed, until_mastered=False, **extra) -> tuple[float, float, float]:
+    """Mean proposed difficulty of the first and of the last fifth of a run, and the learner's
+    skill gain. With `until_mastered` the last fifth ends where the learner masters the space:
+    from there every return is the same, and a teacher that follows progress has none left to
+    follow."""
+    difficulties, skills, _ = run(name, episodes, seed=seed, **extra)
+    window = episodes // 5
+    end = len(skills)
+    if until_mastered and skills[-1] >= MASTERED:
+        end = int(np.argmax(skills >= MASTERED)) + 1
+    assert end >= 2 * window, f"{name} seed {seed}: the space is mastered at episode {end}"
+    early, late = difficulties[:window].mean(), difficulties[end - window : end].mean()
+    return early, late, skills[-1] - skills[0]
+
+
+def assert_moves(name, episodes, at_least, threshold=0.1, **extra) -> None:
+    """The learner improves and the proposals get harder by `threshold` on `at_least` of SEEDS
+    (seeds are played in order until that many have moved)."""
+    results, moved = {}, 0
+    for seed in SEEDS:
+        early, late, gain = results[seed] = movement(name, episodes, seed, **extra)
+        moved += gain > 0.2 and late > early + threshold
+        if moved >= at_least:
+            return
+    report = ", ".join(
+        f"seed {s}: {early:.2f} -> {late:.2f} (skill +{gain:.2f})"
+        for s, (early, late, gain) in results.items()
+    )
+    raise AssertionError(f"{name} moved on {moved} of {len(SEEDS)} seeds: {report}")
+
+
 @pytest.mark.parametrize(
-    "name, episodes",
+    "name, episodes, at_least, extra",
     [
-        ("oracle", 2000),
-        ("adr", 2000),
-        ("goal-gan", 800),
-        ("alp-gmm", 2000),
-        ("covar-gmm", 2000),
-        ("riac", 2000),
-        ("terrain-levels", 2000),
+        ("oracle", 2000, 3, {}),
+        ("adr", 2000, 3, {}),
+        # stalls where no goal is of intermediate difficulty (3 of seeds 0-19; docs/teachers.md)
+        ("goal-gan", 800, 2, {}),
+        ("alp-gmm", 2000, 3, {}),
+        # progress = Cov(time, return): flat once the space is mastered, so measured until then
+        ("covar-gmm", 2000, 3, {"rate": 0.002, "until_mastered": True}),
+        ("riac", 2000, 3, {}),
+        ("terrain-levels", 2000, 3, {}),
     ],
 )
-def test_proposed_tasks_get_harder_as_the_learner_improves(name, episodes):
-    difficulties, skills, _ = run(name, episodes)
-    window = episodes // 5
-    early, late = difficulties[:window].mean(), difficulties[-window:].mean()
-    assert skills[-1] > skills[0] + 0.2, f"{name}: the learner did not improve ({skills[-1]:.2f})"
-    assert late > early + 0.1, f"{name}: proposed difficulty {early:.2f} -> {late:.2f}"
+def test_proposed_tasks_get_harder_as_the_learner_improves(name, episodes, at_least, extra):
+    assert_moves(name, episodes, at_least, **extra)
+
+
+@pytest.mark.parametrize("extra", [{}, {"rate": 0.002, "until_mastered": True}])
+def test_random_fails_the_same_assertion_on_every_seed(extra):
+    """The assertion above can fail: uniform proposals move on none of the seeds."""
+    with pytest.raises(AssertionError, match="moved on 0 of"):
+        assert_moves("random", 2000, at_least=1, **extra)
 
 
 @pytest.mark.parametrize("name", ["oracle", "adr", "goal-gan"])
@@ -219,12 +259,10 @@ def test_setter_solver_proposals_get_harder_with_a_faster_setter():
     """With non-default update settings (FAST_SETTER): the defaults are sized for the tens of
     thousands of episodes of a real run and do not move within a unit test's episodes (see
     docs/teachers.md). The setter first narrows onto feasible (easier) goals, then follows the
-    learner up; the proposals of the last 200 episodes are harder than those of the first 200
-    (about 0.45 -> 0.85; seeds 1 and 2: 0.45 -> 0.71, 0.47 -> 0.83). About 5 s."""
-    difficulties, skills, _ = run("setter-solver", 1000, **FAST_SETTER)
-    early, late = windows(difficulties)[[0, -1]]
-    assert skills[-1] > skills[0] + 0.2, f"the learner did not improve ({skills[-1]:.2f})"
-    assert late > early + 0.2, f"setter-solver: proposed difficulty {early:.2f} -> {late:.2f}"
+    learner up: the proposals of the last 200 episodes are harder than those of the first 200 by
+    0.26-0.40 on seeds 0-2. Over seeds 0-7 by more than 0.2 on 4 only (3-5 lag behind the
+    learner, 6 collapses onto a corner), hence 2 of 3. About 6 s a seed."""
+    assert_moves("setter-solver", 1000, at_least=2, threshold=0.2, **FAST_SETTER)
 
 
 LESSONS = {
