@@ -91,10 +91,14 @@ def main() -> None:
     wp, _ = import_warp()
     wp.init()
     log = LaunchLog(wp)
-    for text in args.env or ["stump-tracks"]:
-        env, kwargs = parse_env(text)
-        exercise(env, kwargs, args.steps)
-    log.close()
+    try:
+        for text in args.env or ["stump-tracks"]:
+            env, kwargs = parse_env(text)
+            exercise(env, kwargs, args.steps)
+    except ValueError as exc:  # an env or body the many-world simulation does not run
+        p.error(f"--env {text}: {exc}")
+    finally:
+        log.close()
 
     start, built = time.perf_counter(), []
     for (_name, block_dim), module in sorted(log.variants.items(), key=lambda kv: kv[0]):
