@@ -1,10 +1,13 @@
 """Behaviour of each curriculum teacher on a simulated learner over Stump Tracks' task space.
 
 The learner's skill grows only with practice near its frontier: an episode on a task of
-difficulty d succeeds with probability sigmoid((skill - d) / 0.03), and playing a task just past
-the frontier raises the skill. A teacher that does what its paper says proposes harder tasks as
+difficulty d returns -100 + 400 sigmoid((skill - d) / 0.03) plus noise of std 10 and succeeds
+above 230: almost surely below d = skill - 0.05, almost never above skill - 0.04 (success
+rates between 0.25 and 0.75 only within 0.007 of difficulty), and playing a task just past the frontier raises
+the skill. A teacher that does what its paper says proposes harder tasks as
 the skill grows; one stuck on a fixed region (a window on the hard corner, a box around one
-random task) fails these tests. Each test runs in about a second (Setter-Solver's in about 5).
+random task) fails these tests. The main ones play seeds 0-2; each runs in a few seconds
+(Setter-Solver's in about 12; the file in about 25 s of CPU).
 
 Teachers that need more than returns get what a training loop gives them (their `needs`): each
 stub episode is STEPS steps sharing its return, its states are (task, fraction of the episode
