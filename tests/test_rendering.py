@@ -9,6 +9,7 @@ import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from cli_support import one_line_error
 from gl_support import require_backend, require_offscreen_gl, run_checked
 
 from acl3d.cli import main
@@ -182,6 +183,26 @@ def test_render_cli_rejects_bad_task(tmp_path, capsys):
     )
     assert code == 2
     assert "stump_hight" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--policy", "random", "--seed", "-4"], "--seed=-4; valid: an integer in [0, 2147483647]"),
+        (["--policy", "random", "--out", "{file}/x.mp4"], "--out's folder="),
+        (["--curriculum", "{file}", "--out", "{file}/c.gif"], "--out's folder="),
+        (["--policy", "random", "--format", "mp4", "--out", "{dir}"], "valid: a file path"),
+    ],
+)
+def test_render_cli_refuses_a_bad_seed_or_out_path_before_playing(
+    tmp_path, capsys, monkeypatch, args, message
+):
+    (tmp_path / "notes.txt").write_text("a file where a folder is meant")
+    where = {"file": str(tmp_path / "notes.txt"), "dir": str(tmp_path)}
+    monkeypatch.setattr("acl3d.cli.render.resolve_source", lambda *a: pytest.fail("played"))
+    assert main(["render", *(a.format(**where) for a in args), "--no-progress"]) == 2
+    one_line_error(capsys, message)
+    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
 
 
 def test_missing_gl_backend_gives_an_actionable_message(tmp_path):

@@ -108,10 +108,27 @@ def _check_counts(args) -> None:
         value = getattr(args, name)
         if value is not None:
             check.integer(f"--{name.replace('_', '-')}", value, 1, most)
+    if args.seed is not None:
+        from acl3d.training.config import MAX_SEED  # torch-free
+
+        check.integer("--seed", args.seed, 0, MAX_SEED)
     if len(args.task) > 1 and args.episodes != 1:
         raise ValueError("--episodes repeats a single --task; with several --task leave it at 1")
     if args.task and args.test_set:
         raise ValueError("--task and --test-set are exclusive: give tasks one way")
+
+
+def _check_out(out: str, fmt: str | None) -> None:
+    """A known format, and a file path whose folder can be made (a file on the way would
+    otherwise fail only when the video is written, after every episode was played)."""
+    from acl3d import validation as check
+    from acl3d.atomic_files import check_creatable_dir
+    from acl3d.video import output_format
+
+    output_format(out, fmt)
+    if Path(out).is_dir():
+        raise check.fail("--out", out, "a file path, not a folder")
+    check_creatable_dir(Path(out).parent, "--out's folder")
 
 
 @dataclass
@@ -214,10 +231,9 @@ def make_policy(model, env, args):
 
 def run(args: argparse.Namespace) -> int:
     from acl3d.playback import EpisodePlayer, record_grid
-    from acl3d.video import output_format
 
     _check_counts(args)
-    output_format(args.out, args.format)  # a bad --out fails before any env is built
+    _check_out(args.out, args.format)  # a bad --out fails before any env is built
     if args.curriculum:
         from acl3d.training.curriculum_animation import write_curriculum_animation
 
