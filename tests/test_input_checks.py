@@ -111,12 +111,15 @@ def test_episode_and_replicate_counts_are_bounded(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
-def test_analyze_names_its_seed_and_replicates_as_typed(tmp_path, capsys):
+def test_analyze_names_its_seed_replicates_and_out_as_typed(tmp_path, capsys):
     assert main(["analyze", str(tmp_path), "--seed", "-1"]) == 2
     one_line_error(capsys, "--seed=-1; valid: an integer >= 0")
     assert main(["analyze", str(tmp_path), "--reps", "5"]) == 2
     one_line_error(capsys, "--reps=5; valid: an integer in [100, 200000]")
     assert not list(tmp_path.iterdir())
+    (tmp_path / "notes.txt").write_text("a file where a folder is meant")
+    assert main(["analyze", str(tmp_path), "--out", str(tmp_path / "notes.txt" / "r")]) == 2
+    one_line_error(capsys, "--out=", "cannot be created", "is a file")
 
 
 # ---------------------------------------------------------------------- 6: names

@@ -47,9 +47,12 @@ def default_out(root) -> Path | None:
 def run(args) -> int:
     from acl3d import validation as check
     from acl3d.analysis.report import MAX_REPS
+    from acl3d.atomic_files import check_creatable_dir
 
     check.integer("--reps", args.reps, 100, MAX_REPS)  # named as typed, before any run is read
     check.seed(args.seed, "--seed")
+    if args.out is not None:
+        check_creatable_dir(Path(args.out), "--out")
     out = args.out if args.out is not None else default_out(args.dir)
     if args.reference is not None:
         from acl3d.analysis.reference import analyze_against
