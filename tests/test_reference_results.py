@@ -190,6 +190,15 @@ def test_export_of_a_real_run(tmp_path):
     assert doc["resumed"] == {"random__s0": 1}
     assert doc["dirty_tree"] == (["random__s0"] if segment["dirty"] or resume["dirty"] else [])
     assert missing_runs(tmp_path / "exported", load_runs(got)) == ["random (1 of 2 seeds)"]
+    # a built-in protocol's campaign run a few cells at a time plans the protocol's whole spec
+    doc = {"spec": {"name": "stump-v2"}, "runs": planned[:1]}
+    (tmp_path / "camp" / "campaign.yaml").write_text(yaml.safe_dump(doc))
+    out = tmp_path / "exported-v2"
+    assert main(["campaign", "export", str(tmp_path / "camp"), "--protocol", "stump-v2",
+                 "--out", str(out)]) == 0  # fmt: skip
+    planned_v2 = yaml.safe_load((out / "protocol.yaml").read_text())["planned_runs"]
+    assert planned_v2["random"] == planned_v2["alp-gmm"] == 16 and planned_v2["riac"] == 8
+    assert "accel" not in planned_v2
     # the exported run is read like the original one
     (original,), (exported,) = load_runs(run_dir), load_runs(got)
     np.testing.assert_array_equal(original.metrics["mean_return"], exported.metrics["mean_return"])

@@ -115,9 +115,11 @@ def _curriculum_files(run: Path, dest: Path) -> dict[str, dict]:
     return {dest.name: strides} if strides else {}
 
 
-def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
+def export_campaign(campaign_dir, out, protocol: str, planned_labels=None) -> list[str]:
     """Write the finished runs under `campaign_dir` into `out` in the committed form; returns
-    the exported run names. Unfinished runs are left out (named in protocol.yaml)."""
+    the exported run names. Unfinished runs are left out (named in protocol.yaml), and so are
+    the runs it planned: `planned_labels` (every planned run's labels, e.g. the protocol's
+    whole spec for a campaign run a few cells at a time), else its manifest's runs."""
     if not isinstance(protocol, str) or not protocol or os.sep in protocol:
         raise ValueError(f"protocol must be a name like 'stump-v1', got {protocol!r}")
     root, out = Path(campaign_dir), Path(out)
@@ -156,8 +158,10 @@ def export_campaign(campaign_dir, out, protocol: str) -> list[str]:
     manifest = next(root.rglob("campaign.yaml"), None)
     campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
     planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
-    for entry in campaign.get("runs", []):
-        teacher = str((entry.get("labels") or {}).get("teacher"))
+    if planned_labels is None:
+        planned_labels = [entry.get("labels") or {} for entry in campaign.get("runs", [])]
+    for labels in planned_labels:
+        teacher = str(labels.get("teacher"))
         planned[teacher] = planned.get(teacher, 0) + 1
     doc = {
         "protocol": protocol,

@@ -202,8 +202,15 @@ def _export(args) -> int:
 
     from acl3d import results
     from acl3d.analysis.export import export_campaign
+    from acl3d.campaign.runner import CampaignDir
+    from acl3d.campaign.spec import builtin_names, load_spec
 
     out = Path(args.out) if args.out else Path(results.__file__).parent / args.protocol
-    names = export_campaign(args.dir, out, args.protocol)
+    planned = None  # a built-in protocol's campaign plans its whole spec, however many cells ran
+    manifest = CampaignDir(args.dir).manifest
+    if args.protocol in builtin_names() and manifest.exists():
+        if CampaignDir(args.dir).read()["spec"]["name"] == args.protocol:
+            planned = [run.labels for run in load_spec(args.protocol).expand()]
+    names = export_campaign(args.dir, out, args.protocol, planned)
     print(f"{len(names)} finished runs exported to {out}")
     return 0
