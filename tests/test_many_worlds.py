@@ -13,6 +13,7 @@ import json
 import numpy as np
 import pytest
 import torch
+import yaml
 
 pytest.importorskip("mujoco_warp", reason="the [gpu] extra: pip install 'acl3d[gpu]'")
 
@@ -233,7 +234,9 @@ def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
     seconds = json.loads((whole / "status.json").read_text())["seconds_by_phase"]
     assert set(seconds) == {"collect", "teacher", "update", "evaluate", "records"}
     assert all(value > 0 for value in seconds.values())
-    assert episodes == (parts / "episodes.csv").read_text()
+    assert episodes == (parts / "episodes.csv").read_text()  # with tasks drawn ahead (rounds)
+    resolved = yaml.safe_load((whole / "config.yaml").read_text())["resolved"]
+    assert resolved["teacher_reserve"] == 1
     evals = [line.split(",")[:6] for line in (whole / "evals.csv").read_text().splitlines()]
     assert evals == [line.split(",")[:6] for line in (parts / "evals.csv").read_text().splitlines()]
     # `acl3d evaluate` plays the final policy on the worlds the run evaluated on
