@@ -153,6 +153,23 @@ def test_evaluate_reproduces_the_runs_last_evaluation(trained_run, tmp_path, cap
     assert read_csv(out)["return"] != [own["return"][i] for i in last]
 
 
+def test_evaluate_a_runs_model_zip_with_the_runs_settings(trained_run, tmp_path, capsys):
+    """RUN/final_model.zip and a checkpoint's model.zip need no --env: the run's own settings."""
+    own = read_csv(RunDir(trained_run).evals_tasks_csv)
+    last = [own["return"][i] for i, step in enumerate(own["step"]) if step == 1024]
+    latest = (trained_run / "checkpoints" / "LATEST").read_text().strip()
+    out = tmp_path / "eval.csv"
+    seed = TrainConfig().seed + 7919
+    for model in (
+        trained_run / "final_model.zip",
+        trained_run / "checkpoints" / latest / "model.zip",
+    ):
+        assert main(["evaluate", str(model), "--out", str(out)]) == 0
+        printed = capsys.readouterr().out
+        assert f"step 1024) on the run's test set (4 tasks x 1), seed {seed}, 2 envs" in printed
+        assert read_csv(out)["return"] == last
+
+
 def test_report_writes_plots_and_video(trained_run, tmp_path):
     require_offscreen_gl()
     out = tmp_path / "report"

@@ -1,7 +1,9 @@
 """`acl3d evaluate RUN_DIR|MODEL.zip`: % mastered and mean return of a policy on a test set.
 
 On a run directory the defaults reproduce the run's own last evaluation exactly: its test set,
-its evaluation seed, its number of evaluation envs and its deterministic/stochastic choice
+its evaluation seed, its number of evaluation envs and its deterministic/stochastic choice; a
+model zip of a run (RUN/final_model.zip, RUN/checkpoints/step_N/model.zip) is evaluated with
+the same settings
 (`--seed`, `--n-envs`, `--test-set`, `--stochastic/--deterministic` vary them). A torch-native
 student's policy file (`rsl-ppo`) is played as its run evaluated: one world per test task, task
 k seeded seed + k, on the CPU batched env, or for a run trained on the many-world simulation on
@@ -90,42 +92,66 @@ class Target:
     many_worlds_device: str | None = None  # where a policy file's run evaluated on many worlds
 
 
+def enclosing_run(model: Path) -> Path | None:
+    """The run directory a model zip belongs to (RUN/final_model.zip or
+    RUN/checkpoints/step_N/model.zip, RUN holding a config.yaml), else None."""
+    folders = [model.parent]
+    if model.parent.parent.name == "checkpoints":
+        folders.append(model.parent.parent.parent)
+    return next((f for f in folders if (f / "config.yaml").is_file()), None)
+
+
 def resolve_target(target, env: str | None, body: str | None) -> Target:
-    """The model, env and the run's own evaluation settings for a run dir or a bare zip."""
+    """The model, env and the run's own evaluation settings for a run dir or a model zip of a
+    run (its final model or a checkpoint's); a zip outside any run gets the bare defaults."""
+    from acl3d.envs.batched import MAX_ENVS
+    from acl3d.training.torch_student.policy_file import is_policy_file
+
+    path = Path(target)
+    if path.is_dir():
+        return _run_target(path, None, env, body)
+    if path.suffix != ".zip" or not path.exists():
+        raise ValueError(f"{target!r} is neither a run directory nor an existing model .zip")
+    run = enclosing_run(path)
+    if run is not None:
+        return _run_target(run, path, env, body)
+    if env is None:
+        raise ValueError(
+            f"--env is required for a model zip outside a run directory ({target!r}: no "
+            "config.yaml of a run beside it or above its checkpoint folder)"
+        )
+    policy = is_policy_file(path)
+    n_envs = MAX_ENVS if policy else BARE_ZIP_ENVS
+    return Target(
+        path, env, body or "classic_bipedal", {}, None, BARE_ZIP_SEED, n_envs, True, None, policy
+    )
+
+
+def _run_target(path: Path, model: Path | None, env: str | None, body: str | None) -> Target:
+    """`model` (default: the run's best) with the settings run `path` evaluated with."""
     from acl3d.envs.batched import MAX_ENVS
     from acl3d.training import TrainConfig
     from acl3d.training.config import uses_many_worlds
     from acl3d.training.run_dir import RunDir
     from acl3d.training.torch_student.policy_file import is_policy_file
 
-    path = Path(target)
-    if path.is_dir():
-        run = RunDir(path)
-        config = TrainConfig.recorded(run.read_section("config"), str(run.config_yaml))
-        run.read_section("resolved")  # as resume: a config.yaml cut short is refused
-        model = run.best_model()
-        policy = is_policy_file(model)
-        return Target(
-            model,
-            env or config.env,
-            body or config.body,
-            dict(config.env_kwargs),
-            run.test_tasks(),
-            config.eval_seed,
-            (config.eval_envs or MAX_ENVS) if policy else config.effective_eval_envs,
-            not config.eval_stochastic,
-            run.path,
-            policy,
-            _many_worlds_device(config) if policy and uses_many_worlds(config) else None,
-        )
-    if path.suffix != ".zip" or not path.exists():
-        raise ValueError(f"{target!r} is neither a run directory nor an existing model .zip")
-    if env is None:
-        raise ValueError("--env is required when evaluating a bare model zip")
-    policy = is_policy_file(path)
-    n_envs = MAX_ENVS if policy else BARE_ZIP_ENVS
+    run = RunDir(path)
+    config = TrainConfig.recorded(run.read_section("config"), str(run.config_yaml))
+    run.read_section("resolved")  # as resume: a config.yaml cut short is refused
+    model = model or run.best_model()
+    policy = is_policy_file(model)
     return Target(
-        path, env, body or "classic_bipedal", {}, None, BARE_ZIP_SEED, n_envs, True, None, policy
+        model,
+        env or config.env,
+        body or config.body,
+        dict(config.env_kwargs),
+        run.test_tasks(),
+        config.eval_seed,
+        (config.eval_envs or MAX_ENVS) if policy else config.effective_eval_envs,
+        not config.eval_stochastic,
+        run.path,
+        policy,
+        _many_worlds_device(config) if policy and uses_many_worlds(config) else None,
     )
 
 

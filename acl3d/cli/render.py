@@ -166,7 +166,7 @@ def resolve_source(target, args) -> Source:
             None, args.env or "stump-tracks", args.body or "classic_bipedal", {}, None, 0, ""
         )
     t = resolve_target(target, args.env, args.body)
-    title = Path(target).name if t.run_dir else Path(target).stem
+    title = Path(t.run_dir).name if t.run_dir else Path(target).stem
     if t.run_dir:
         from acl3d.training.run_dir import RunDir
 
