@@ -215,6 +215,38 @@ def test_numbers_are_named_as_typed_whatever_the_executor(args, message, tmp_pat
     assert err == f"acl3d campaign: error: {message}" and not out.exists()
 
 
+def test_an_export_never_replaces_a_folder_that_is_not_an_export(tmp_path, capsys, monkeypatch):
+    import acl3d.results
+
+    camp = tmp_path / "work" / "camp"
+    camp.mkdir(parents=True)
+    doc = {"spec": {"name": "quick"}, "invocation": {"budget": 0.01}, "runs": []}
+    (camp / "campaign.yaml").write_text(yaml.safe_dump(doc))
+    (tmp_path / "work" / "notes.txt").write_text("mine")
+    shipped = tmp_path / "package" / "results"
+    (shipped / "stump-v1").mkdir(parents=True)
+    (shipped / "stump-v1" / "protocol.yaml").write_text("protocol: stump-v1\n")
+    monkeypatch.setattr(acl3d.results, "__file__", str(shipped / "__init__.py"))
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    export = ["campaign", "export", str(camp), "--protocol"]
+    for args, words in [
+        ([*export, "mine", "--out", str(tmp_path / "work")], ("holds the campaign",)),
+        ([*export, "mine", "--out", str(camp)], ("holds the campaign",)),
+        ([*export, "mine", "--out", str(tmp_path)], ("holds the campaign",)),
+        ([*export, "stump-v1"], ("is not protocol 'stump-v1' at full budget", "--out DIR")),
+    ]:
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and all(w in err for w in words), err
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    assert main([*export, "mine", "--out", str(other)]) == 2
+    assert "not an export (no protocol.yaml)" in capsys.readouterr().err
+    after = sorted(str(p) for p in tmp_path.rglob("*"))
+    assert after == sorted([*before, str(other), str(other / "notes.txt")])
+
+
 def test_spec_mistakes_are_one_line_before_anything_is_written(tmp_path, capsys):
     long_label = "a" * 300
     specs = {

@@ -211,6 +211,38 @@ def _export(args) -> int:
     if args.protocol in builtin_names() and manifest.exists():
         if CampaignDir(args.dir).read()["spec"]["name"] == args.protocol:
             planned = [run.labels for run in load_spec(args.protocol).expand()]
+    _check_export_out(args, out, shipped=not args.out)
     names = export_campaign(args.dir, out, args.protocol, planned)
     print(f"{len(names)} finished runs exported to {out}")
     return 0
+
+
+def _check_export_out(args, out, shipped: bool) -> None:
+    """An export replaces its folder as a whole: refused where that folder holds the campaign
+    or files that are no export, and where it would replace acl3d's shipped results of a
+    protocol with a campaign that is not that protocol at full budget."""
+    from pathlib import Path
+
+    from acl3d.campaign.runner import CampaignDir
+
+    source, target = Path(args.dir).resolve(), Path(out).resolve()
+    if target == source or target in source.parents:
+        raise ValueError(
+            f"--out={str(out)!r} holds the campaign {args.dir!r}, and an export replaces its "
+            "folder as a whole; choose another --out"
+        )
+    if target.is_dir() and any(target.iterdir()) and not (target / "protocol.yaml").exists():
+        raise ValueError(
+            f"--out={str(out)!r} holds files that are not an export (no protocol.yaml), and an "
+            "export replaces its folder as a whole; choose a new folder or an earlier export"
+        )
+    camp = CampaignDir(args.dir)
+    doc = camp.read() if camp.manifest.exists() else {}
+    name = (doc.get("spec") or {}).get("name")
+    budget = (doc.get("invocation") or {}).get("budget", 1.0)
+    if shipped and target.exists() and (name != args.protocol or budget != 1.0):
+        raise ValueError(
+            f"campaign {args.dir!r} ({name or 'no campaign.yaml'}, budget {budget}) is not "
+            f"protocol {args.protocol!r} at full budget: exporting it without --out would "
+            f"replace the {args.protocol} results shipped with acl3d ({out}); pass --out DIR"
+        )
