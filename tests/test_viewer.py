@@ -78,6 +78,18 @@ def test_view_cli_without_a_display_exits_2_with_the_reason(headless, capsys):
     assert "acl3d view: error:" in err and "DISPLAY" in err and "xvfb" in err
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--steps", "0"], "--steps=0; valid: an integer >= 1"),
+        (["--seed", "-1"], "--seed=-1; valid: an integer in [0, 2147483647]"),
+    ],
+)
+def test_view_cli_names_a_bad_count_before_looking_for_a_display(args, message, capsys):
+    assert main(["view", *args]) == 2
+    assert capsys.readouterr().err.strip() == f"acl3d view: error: {message}"
+
+
 @pytest.fixture
 def xvfb_display():
     """A private Xvfb server; -displayfd reports its display number once it accepts clients."""
