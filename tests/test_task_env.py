@@ -18,6 +18,8 @@ def test_every_acl3d_env_is_a_task_env_with_snapshots(name):
         inner = task_env(env)
         assert inner is env.unwrapped
         assert isinstance(inner, TaskEnv) and isinstance(inner, SnapshotEnv)
+        # Gymnasium's solved-return convention is the env's own success return
+        assert env.spec.reward_threshold == inner.curriculum_profile.success_return
     finally:
         env.close()
 

@@ -9,6 +9,9 @@ from typing import NamedTuple
 import gymnasium as gym
 
 MAX_EPISODE_STEPS = 2000  # the students' cut in TeachMyAgent (40 s at 50 Hz), a truncation
+# an episode above this return masters its task (TeachMyAgent's): every env's
+# `CurriculumProfile.success_return` and Gymnasium's `reward_threshold`
+REWARD_THRESHOLD = 230.0
 
 
 class Registration(NamedTuple):
@@ -97,6 +100,7 @@ for _reg in REGISTRY.values():
             vector_entry_point=_reg.vector_entry_point,
             kwargs=_reg.kwargs,
             max_episode_steps=MAX_EPISODE_STEPS,
+            reward_threshold=REWARD_THRESHOLD,
         )
 
 

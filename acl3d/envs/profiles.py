@@ -27,10 +27,9 @@ import functools
 import numpy as np
 
 from acl3d.curriculum_profile import CurriculumProfile
+from acl3d.envs import REWARD_THRESHOLD
 from acl3d.task_space import TaskSpace
 from acl3d.terrain import parkour_test_sets, terrain3d_test_sets
-
-SUCCESS_RETURN = 230.0  # TeachMyAgent's: an episode with a higher return masters its task
 
 
 def _stump_initial_dist(space: TaskSpace) -> dict[str, np.ndarray]:
@@ -55,7 +54,7 @@ def _hexagon_initial_dist(space: TaskSpace) -> dict[str, np.ndarray]:
 STUMP_TRACKS = CurriculumProfile(
     name="stump-tracks",
     reward_bounds=(-150.0, 350.0),
-    success_return=SUCCESS_RETURN,
+    success_return=REWARD_THRESHOLD,
     initial_dist=_stump_initial_dist,
     default_test_grid={"stump_height": (0.0, 3.0), "obstacle_spacing": (0.0, 6.0)},
     easy_at_high=frozenset({"obstacle_spacing"}),
@@ -64,14 +63,14 @@ STUMP_TRACKS = CurriculumProfile(
 HEXAGON_TRACKS = CurriculumProfile(
     name="hexagon-tracks",
     reward_bounds=(-150.0, 350.0),
-    success_return=SUCCESS_RETURN,
+    success_return=REWARD_THRESHOLD,
     initial_dist=_hexagon_initial_dist,
 )
 
 PARKOUR = CurriculumProfile(
     name="parkour",
     reward_bounds=(-150.0, 360.0),
-    success_return=SUCCESS_RETURN,
+    success_return=REWARD_THRESHOLD,
     test_sets={
         name: functools.partial(parkour_test_sets.build, name)
         for name in (*parkour_test_sets.SEEDS, *parkour_test_sets.ALIASES)
@@ -89,7 +88,7 @@ def _terrain3d_initial_dist(space: TaskSpace) -> dict[str, np.ndarray]:
 TERRAIN3D = CurriculumProfile(
     name="terrain3d",
     reward_bounds=(-150.0, 350.0),
-    success_return=SUCCESS_RETURN,
+    success_return=REWARD_THRESHOLD,
     initial_dist=_terrain3d_initial_dist,
     test_sets={"graded": terrain3d_test_sets.graded},
     easy_at_high=frozenset(terrain3d_test_sets.EASY_AT_HIGH),
