@@ -196,3 +196,16 @@ def test_unknown_train_option_prints_trains_usage(capsys):
 def test_a_misspelt_teacher_gets_did_you_mean():
     with pytest.raises(ValueError, match=r"unknown teacher 'alp_gmm' \(did you mean 'alp-gmm'\?\)"):
         teacher_class("alp_gmm")
+
+
+@pytest.mark.parametrize("student", ["ppo", "rsl-ppo"])
+def test_a_refused_run_says_nothing_about_its_steps_first(student, tmp_path, capsys):
+    """The note that steps round up to whole rollouts comes once the run's checks passed: a
+    refused run prints its error alone."""
+    if student == "rsl-ppo":
+        pytest.importorskip("rsl_rl")
+    code = main(["train", "--student", student, "--steps", "1000", "--teacher-param", "foo=1",
+                 "--out", str(tmp_path / "run")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "unknown parameter(s) ['foo']" in err
+    assert "whole number" not in err and not (tmp_path / "run").exists()

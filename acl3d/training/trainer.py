@@ -98,18 +98,21 @@ def train(
 
 def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
     start = 0 if resume_from is None else int(read_state(resume_from / "progress")["num_timesteps"])
-    target = _target_steps(config, start, finished=run.status() == "finished")
+    target, rounding = _target_steps(config, start, finished=run.status() == "finished")
+    notes = [] if rounding is None else [rounding]
     if students.is_torch_native(config.student):  # its own loop on tensor worlds
         from acl3d.training.torch_student.run import train_run
 
         if user_callbacks:
             raise ValueError(f"callbacks: SB3 callbacks do not apply to {config.student!r}")
         try:
-            steps = train_run(config, run, resume_from, target, overwrite)
+            steps = train_run(config, run, resume_from, target, overwrite, notes)
         finally:
             run.unlock()
         return TrainResult(run.path, steps, _last_eval(run))
     session = Session(config, run, resume_from)  # builds the controller: fails before any worker
+    for note in notes:
+        _note(note)
     sections = {
         "student_hyperparameters": session.params,
         "resolved": {
@@ -176,10 +179,11 @@ def _resumed_config(run: RunDir, changes: dict) -> TrainConfig:
     )
 
 
-def _target_steps(config: TrainConfig, start: int, finished: bool) -> int:
-    """The step count the run trains to: `steps` rounded up to whole SB3 collections (said up
-    front when it differs). A finished run that already has `steps` is refused; an unfinished one
-    (killed after its last checkpoint) only writes its final model."""
+def _target_steps(config: TrainConfig, start: int, finished: bool) -> tuple[int, str | None]:
+    """The step count the run trains to: `steps` rounded up to whole collections, and the note
+    that says so when it differs (printed once the run's checks have passed). A finished run
+    that already has `steps` is refused; an unfinished one (killed after its last checkpoint)
+    only writes its final model."""
     unit = steps_per_collection(config.student, student_params(config), config.n_envs)
     target = start + round_steps(max(0, config.steps - start), unit)
     if start >= config.steps and finished:
@@ -187,19 +191,15 @@ def _target_steps(config: TrainConfig, start: int, finished: bool) -> int:
             f"steps={config.steps}: the run already has {start} steps; pass a larger steps "
             "value to extend it"
         )
-    if target != config.steps and config.verbose:
-        what = (
-            "rollouts"
-            if students.is_on_policy(config.student)
-            else "collections (train_freq x n_envs)"
-        )
-        print(
-            f"[acl3d] steps={config.steps} is not a whole number of {config.student.upper()} "
-            f"{what} of {unit} steps: training {target} steps",
-            file=sys.stderr,
-            flush=True,
-        )
-    return target
+    if target == config.steps or not config.verbose:
+        return target, None
+    what = (
+        "rollouts" if students.is_on_policy(config.student) else "collections (train_freq x n_envs)"
+    )
+    return target, (
+        f"steps={config.steps} is not a whole number of {config.student.upper()} {what} of "
+        f"{unit} steps: training {target} steps"
+    )
 
 
 def _announce_evaluations(config: TrainConfig, target: int, test_tasks) -> None:

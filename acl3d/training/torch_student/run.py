@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -327,10 +328,15 @@ def _writer(path: Path):
     return SummaryWriter(str(path))
 
 
-def train_run(config: TrainConfig, run: RunDir, resume_from, target: int, overwrite: bool) -> int:
+def train_run(
+    config: TrainConfig, run: RunDir, resume_from, target: int, overwrite: bool, notes=()
+) -> int:
     """Train `config`'s torch-native student to `target` steps in `run` (new or resumed); the
-    run's status says finished, interrupted (Ctrl-C, SIGTERM) or crashed, as for SB3 students."""
+    run's status says finished, interrupted (Ctrl-C, SIGTERM) or crashed, as for SB3 students.
+    `notes` are printed once the run's checks have passed."""
     torch_run = TorchRun(config, run, resume_from)  # every check before anything is written
+    for note in notes:
+        print(f"[acl3d] {note}", file=sys.stderr, flush=True)
     sections = {
         "student_hyperparameters": torch_run.params,
         "resolved": {
