@@ -51,7 +51,8 @@ def status_table(states: list[RunState], rates: dict[str, float] | None = None, 
             s.name,
             s.status,
             f"{s.steps:,}",
-            f"{100 * s.steps / max(1, s.total_steps):.0f}%",
+            # a run trains to whole rollouts, a few steps past its budget: 100% at the most
+            f"{min(100, 100 * s.steps // max(1, s.total_steps))}%",
             f"{rate:,.0f}" if rate else "",
             "" if s.last_mastered_pct is None else f"{s.last_mastered_pct:.1f}",
             str(s.failures or ""),
@@ -69,6 +70,7 @@ class ProgressView:
             self._live.start()
         self._first: dict[str, tuple[float, int]] = {}  # run -> (time, steps) first seen running
         self._last_draw = self._last_log = 0.0
+        self._last_line = ""
         self.refresh(force=True)
 
     def note(self, text: str) -> None:
@@ -90,6 +92,8 @@ class ProgressView:
         total_rate = sum(rates.values())
         left = sum(max(0, s.total_steps - s.steps) for s in states if s.status != "finished")
         eta = str(timedelta(seconds=int(left / total_rate))) if total_rate > 0 else "?"
+        if left == 0:
+            eta = "none left"
         return (
             f"{c['finished']}/{len(states)} finished, {c['running']} running, {c['failed']} "
             f"failed, {c['pending']} waiting | {total_rate:,.0f} steps/s | ETA {eta}"
@@ -105,8 +109,8 @@ class ProgressView:
         line = self.headline(states, rates)
         if self._live is not None:
             self._live.update(status_table(states, rates, title=line), refresh=True)
-        elif force or now - self._last_log >= _LOG_EVERY_S:
-            self._last_log = now
+        elif (force and line != self._last_line) or now - self._last_log >= _LOG_EVERY_S:
+            self._last_log, self._last_line = now, line
             self.note(f"{time.strftime('%H:%M:%S')} {line}")
 
     def close(self) -> None:
