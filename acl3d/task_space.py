@@ -68,8 +68,9 @@ class TaskSpace:
                 raise validation.fail(
                     f"bounds of {p.name!r}", (p.low, p.high), "as many lower as upper bounds"
                 )
-            if np.any(lo > hi):
-                raise validation.fail(f"bounds of {p.name!r}", (p.low, p.high), "min <= max")
+            if np.any(lo > hi):  # shown as written: [min, max] (per dimension if several)
+                given = [lo.tolist(), hi.tolist()] if lo.size > 1 else [lo.item(), hi.item()]
+                raise validation.fail(f"bounds of {p.name!r}", given, "min <= max")
             offsets[p.name] = (start, start + p.dims)
             start += p.dims
         object.__setattr__(self, "_offsets", offsets)

@@ -209,3 +209,9 @@ def test_a_refused_run_says_nothing_about_its_steps_first(student, tmp_path, cap
     err = capsys.readouterr().err
     assert code == 2 and "unknown parameter(s) ['foo']" in err
     assert "whole number" not in err and not (tmp_path / "run").exists()
+
+
+def test_reversed_bounds_are_named_as_written(tmp_path, capsys):
+    code = main(["train", "--bounds", "stump_height=3,0", "--out", str(tmp_path / "run")])
+    assert code == 2 and not (tmp_path / "run").exists()
+    assert "bounds of 'stump_height'=[3.0, 0.0]; valid: min <= max" in capsys.readouterr().err
