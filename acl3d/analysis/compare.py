@@ -51,7 +51,8 @@ class Comparison:
         self.teachers = sorted({t for t, _ in self.cells}, key=lambda t: (t != baseline, t))
         if baseline not in self.teachers:
             raise ValueError(
-                f"baseline teacher {baseline!r} has no runs; teachers: {', '.join(self.teachers)}"
+                f"baseline teacher {baseline!r} has no runs; teachers: {', '.join(self.teachers)} "
+                "(choose one: baseline=..., --baseline on the command line)"
             )
         self.tasks = sorted({task for _, task in self.cells})
 
