@@ -259,18 +259,34 @@ def _how_to_continue(run) -> str:
     return "nothing was written"
 
 
+# options whose flag is not --FIELD-NAME (switches that turn a default off)
+_FLAGS = {
+    "progress_bar": "--no-progress",
+    "tensorboard": "--no-tensorboard",
+    "save_replay_buffer": "--no-replay-buffer-save",
+    "verbose": "--quiet",
+}
+
+
+def _flag(field: str) -> str:
+    return _FLAGS.get(field, f"--{field.replace('_', '-')}")
+
+
 def option_message(message: str) -> str:
     """A config check's message with the option's command-line spelling: `n_envs=0; ...` reads
-    `--n-envs=0; ...`, `student_params['gamma']=2; ...` reads `--student-param gamma=2; ...`."""
+    `--n-envs=0; ...`, `student_params['gamma']=2; ...` reads `--student-param gamma=2; ...`,
+    `cannot change ['n_envs'] ...` reads `cannot change [--n-envs] ...`."""
     message = " ".join(message.split())  # one line
-    match = _FIELD_MESSAGE.match(message)
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    if message.startswith("cannot change ["):  # a resume's fixed options, as typed
+        return re.sub(r"'(\w+)'", lambda m: _flag(m[1]) if m[1] in fields else m[0], message)
+    match = _FIELD_MESSAGE.match(message)
     if match is None or match[1] not in fields:
         return message
     field, key = match[1], match[2]
     if field in MAPPING_OPTIONS and key is not None:
         return f"{MAPPING_OPTIONS[field]} {key}={message[match.end() :]}"
-    return f"--{field.replace('_', '-')}={message[match.end() :]}"
+    return f"{_flag(field)}={message[match.end() :]}"
 
 
 def run(args) -> int:
