@@ -12,9 +12,12 @@ one Adam step of sigmoid cross-entropy against the binary successes, and the set
 Differences from TeachMyAgent's version (why):
 * The judge has the intended three hidden layers of 64 (the original passes one size too few
   and gets two).
-* The feasibility term uses fresh latents z ~ N(0, I) for the buffered feasibilities, as in the
-  paper: re-generating the stored goal from the latent the flow infers for it is the identity
-  map, whose gradient carries no feasibility signal.
+* The feasibility and coverage terms are taken at fresh latents z ~ N(0, I) with the buffered
+  feasibilities, the paper's expectation over z and f. TeachMyAgent takes them at the latents of
+  the buffered goals, recovered by inverting the flow and fed back as constants: draws from
+  N(0, I) too (the goals were proposed from them), so the gradient carries the same feasibility
+  signal, at the goals the judge was just trained on. On the behavioural test's learner neither
+  does better (docs/teachers.md).
 * Every coupling starts as the identity (zero output weights, scale bias set so that the scale is
   1), so the untrained setter covers the space like sigmoid(N(0, 1)) instead of starting with the
   ~0.3^6 contraction that stacked scales of 1/pi + 0.01 give.
@@ -236,10 +239,22 @@ class SetterSolver(Teacher):
         judge_loss.backward()
         self.judge_opt.step()
 
+        setter_loss = sum(self.setter_losses(goals, f, success).values())
+        self.setter_opt.zero_grad()
+        setter_loss.backward()
+        self.setter_opt.step()
+        self.judge_opt.zero_grad()  # the setter loss also reached the judge; it must not leak
+
+        self.bk["judge_loss"].append(float(judge_loss.detach()))
+        self.bk["setter_loss"].append(float(setter_loss.detach()))
+
+    def setter_losses(
+        self, goals: torch.Tensor, f: torch.Tensor, success: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """The setter's three loss terms on a buffer of unit goals, their feasibilities (n, 1) and
+        successes (n, 1). Their sum, unweighted as in TeachMyAgent, is what one setter step lowers."""
         z = torch.randn(len(goals), self.dim, generator=self.gen)
         generated, log_p = self.setter.sample(z, f)
-        feasibility = ((self.judge(generated) - torch.logit(f)) ** 2).mean()
-        coverage = log_p.mean()
         ok = success[:, 0] > 0
         validity = torch.zeros(())
         if ok.any():
@@ -248,14 +263,11 @@ class SetterSolver(Teacher):
             )
             noisy = torch.clamp(goals[ok] + noise, _GOAL_CLIP, 1 - _GOAL_CLIP)
             validity = -self.setter.log_prob(noisy, f[ok]).mean()
-        setter_loss = feasibility + validity + coverage
-        self.setter_opt.zero_grad()
-        setter_loss.backward()
-        self.setter_opt.step()
-        self.judge_opt.zero_grad()  # the setter loss also reached the judge; it must not leak
-
-        self.bk["judge_loss"].append(float(judge_loss.detach()))
-        self.bk["setter_loss"].append(float(setter_loss.detach()))
+        return {
+            "feasibility": ((self.judge(generated) - torch.logit(f)) ** 2).mean(),
+            "validity": validity,
+            "coverage": log_p.mean(),
+        }
 
     # ------------------------------------------------------------------ checkpointing
     def _extra_state(self) -> dict[str, Any]:
