@@ -185,6 +185,15 @@ def test_render_cli_rejects_bad_task(tmp_path, capsys):
     assert "stump_hight" in capsys.readouterr().err
 
 
+def test_render_cli_refuses_an_unbuildable_task_before_playing(tmp_path, capsys):
+    require_offscreen_gl()
+    out = tmp_path / "x.mp4"
+    assert main(["render", "--task", "stump_height=99", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "stump_height=99.0; valid: values in the buildable range" in err
+    assert "step" not in err and not out.exists()  # no progress bar, no file
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

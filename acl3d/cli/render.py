@@ -230,6 +230,7 @@ def make_policy(model, env, args):
 
 
 def run(args: argparse.Namespace) -> int:
+    from acl3d.envs.task_env import task_env
     from acl3d.playback import EpisodePlayer, record_grid
 
     _check_counts(args)
@@ -261,6 +262,8 @@ def run(args: argparse.Namespace) -> int:
             if tasks is None:  # every cell plays the first source's tasks, with its seed
                 tasks = _tasks(env, args, source.tasks)
                 seed = source.seed if seed is None else seed
+            for task in tasks:  # an unbuildable task fails before anything is played
+                task_env(env).set_task(task)
         summaries = record_grid(
             players,
             args.out,
