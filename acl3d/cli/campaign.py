@@ -206,24 +206,23 @@ def _export(args) -> int:
     from acl3d.campaign.spec import builtin_names, load_spec
 
     out = Path(args.out) if args.out else Path(results.__file__).parent / args.protocol
+    camp = CampaignDir(args.dir)
+    manifest = camp.read() if camp.manifest.exists() else {}
+    ran = (manifest.get("spec") or {}).get("name")
     planned = None  # a built-in protocol's campaign plans its whole spec, however many cells ran
-    manifest = CampaignDir(args.dir).manifest
-    if args.protocol in builtin_names() and manifest.exists():
-        if CampaignDir(args.dir).read()["spec"]["name"] == args.protocol:
-            planned = [run.labels for run in load_spec(args.protocol).expand()]
-    _check_export_out(args, out, shipped=not args.out)
+    if args.protocol in builtin_names() and ran == args.protocol:
+        planned = [run.labels for run in load_spec(args.protocol).expand()]
+    _check_export_out(args, out, manifest, shipped=not args.out)
     names = export_campaign(args.dir, out, args.protocol, planned)
     print(f"{len(names)} finished runs exported to {out}")
     return 0
 
 
-def _check_export_out(args, out, shipped: bool) -> None:
+def _check_export_out(args, out, manifest: dict, shipped: bool) -> None:
     """An export replaces its folder as a whole: refused where that folder holds the campaign
     or files that are no export, and where it would replace acl3d's shipped results of a
     protocol with a campaign that is not that protocol at full budget."""
     from pathlib import Path
-
-    from acl3d.campaign.runner import CampaignDir
 
     source, target = Path(args.dir).resolve(), Path(out).resolve()
     if target == source or target in source.parents:
@@ -236,10 +235,8 @@ def _check_export_out(args, out, shipped: bool) -> None:
             f"--out={str(out)!r} holds files that are not an export (no protocol.yaml), and an "
             "export replaces its folder as a whole; choose a new folder or an earlier export"
         )
-    camp = CampaignDir(args.dir)
-    doc = camp.read() if camp.manifest.exists() else {}
-    name = (doc.get("spec") or {}).get("name")
-    budget = (doc.get("invocation") or {}).get("budget", 1.0)
+    name = (manifest.get("spec") or {}).get("name")
+    budget = (manifest.get("invocation") or {}).get("budget", 1.0)
     if shipped and target.exists() and (name != args.protocol or budget != 1.0):
         raise ValueError(
             f"campaign {args.dir!r} ({name or 'no campaign.yaml'}, budget {budget}) is not "

@@ -25,6 +25,15 @@ COUNT_OPTIONS = (
 )  # fmt: skip
 
 
+def seed_option(value, flag: str = "--seed") -> None:
+    """A seed typed on the command line: None, or an integer in [0, MAX_SEED] named as typed
+    (numpy's own error names no option)."""
+    from acl3d.training.config import MAX_SEED  # torch-free
+
+    if value is not None:
+        check.integer(flag, value, 0, MAX_SEED)
+
+
 def count(text: str) -> int:
     """Integers written as 2e6 or 2000000."""
     try:

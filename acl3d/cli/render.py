@@ -103,15 +103,13 @@ _MOST = {
 
 def _check_counts(args) -> None:
     from acl3d import validation as check
+    from acl3d.cli.option_values import seed_option
 
     for name, most in _MOST.items():
         value = getattr(args, name)
         if value is not None:
             check.integer(f"--{name.replace('_', '-')}", value, 1, most)
-    if args.seed is not None:
-        from acl3d.training.config import MAX_SEED  # torch-free
-
-        check.integer("--seed", args.seed, 0, MAX_SEED)
+    seed_option(args.seed)
     if len(args.task) > 1 and args.episodes != 1:
         raise ValueError("--episodes repeats a single --task; with several --task leave it at 1")
     if args.task and args.test_set:
@@ -262,8 +260,9 @@ def run(args: argparse.Namespace) -> int:
             if tasks is None:  # every cell plays the first source's tasks, with its seed
                 tasks = _tasks(env, args, source.tasks)
                 seed = source.seed if seed is None else seed
+            inner = task_env(env)
             for task in tasks:  # an unbuildable task fails before anything is played
-                task_env(env).set_task(task)
+                inner.set_task(task)
         summaries = record_grid(
             players,
             args.out,

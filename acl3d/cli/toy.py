@@ -81,10 +81,10 @@ def check_args(args: argparse.Namespace) -> None:
     only when the GIF was written)."""
     from acl3d import validation as check
     from acl3d.atomic_files import check_creatable_dir
-    from acl3d.training.config import MAX_SEED
+    from acl3d.cli.option_values import seed_option
 
     check.integer("--episodes", args.episodes, 0)
-    check.integer("--seed", args.seed, 0, MAX_SEED)
+    seed_option(args.seed)
     for name in ("nb_dims", "nb_cubes", "score_every", "gif_every"):
         check.integer(f"--{name.replace('_', '-')}", getattr(args, name), 1)
     check.integer("--irrelevant-dims", args.irrelevant_dims, 0)

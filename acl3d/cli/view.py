@@ -41,13 +41,13 @@ def _random_task(space, rng, check) -> np.ndarray:
 
 def run(args: argparse.Namespace) -> int:
     from acl3d import validation as check
+    from acl3d.cli.option_values import seed_option
     from acl3d.cli.render import make_policy, make_source_env, resolve_source
-    from acl3d.training.config import MAX_SEED  # torch-free
     from acl3d.viewer import HumanViewer, check_display
 
     if args.steps is not None:
         check.integer("--steps", args.steps, 1)
-    check.integer("--seed", args.seed, 0, MAX_SEED)  # numpy's own error names no option
+    seed_option(args.seed)
     try:
         check_display()
     except RuntimeError as exc:  # a headless machine is a usage problem: one line, exit 2

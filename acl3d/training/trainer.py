@@ -99,20 +99,23 @@ def train(
 def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
     start = 0 if resume_from is None else int(read_state(resume_from / "progress")["num_timesteps"])
     target, rounding = _target_steps(config, start, finished=run.status() == "finished")
-    notes = [] if rounding is None else [rounding]
+
+    def checked() -> None:  # the run's checks passed: say what only matters for a run that starts
+        if rounding is not None:
+            _note(rounding)
+
     if students.is_torch_native(config.student):  # its own loop on tensor worlds
         from acl3d.training.torch_student.run import train_run
 
         if user_callbacks:
             raise ValueError(f"callbacks: SB3 callbacks do not apply to {config.student!r}")
         try:
-            steps = train_run(config, run, resume_from, target, overwrite, notes)
+            steps = train_run(config, run, resume_from, target, overwrite, checked)
         finally:
             run.unlock()
         return TrainResult(run.path, steps, _last_eval(run))
     session = Session(config, run, resume_from)  # builds the controller: fails before any worker
-    for note in notes:
-        _note(note)
+    checked()
     sections = {
         "student_hyperparameters": session.params,
         "resolved": {

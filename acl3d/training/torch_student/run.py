@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
 import threading
 import time
 from pathlib import Path
@@ -329,14 +328,14 @@ def _writer(path: Path):
 
 
 def train_run(
-    config: TrainConfig, run: RunDir, resume_from, target: int, overwrite: bool, notes=()
+    config: TrainConfig, run: RunDir, resume_from, target: int, overwrite: bool, checked=None
 ) -> int:
     """Train `config`'s torch-native student to `target` steps in `run` (new or resumed); the
     run's status says finished, interrupted (Ctrl-C, SIGTERM) or crashed, as for SB3 students.
-    `notes` are printed once the run's checks have passed."""
+    `checked()`, if given, is called once the run's checks have passed."""
     torch_run = TorchRun(config, run, resume_from)  # every check before anything is written
-    for note in notes:
-        print(f"[acl3d] {note}", file=sys.stderr, flush=True)
+    if checked is not None:
+        checked()
     sections = {
         "student_hyperparameters": torch_run.params,
         "resolved": {
