@@ -1,13 +1,14 @@
-"""What one step's rules cost on each array library: the numpy rules of the CPU path against
-the torch rules of the many-world simulation run on CPU tensors (torch on both backends?).
+"""What one step's rules cost on each array library: the rules (written once over the Array API)
+on the CPU path's numpy arrays against the same rules on the many-world simulation's torch
+tensors, on the CPU.
 
     python scripts/bench_rules.py [--env stump-tracks] [--sizes 1 64] [--steps 300]
 
 Per size, in one run, one torch thread, after a few warm-up steps, best of `--rounds`:
-* numpy: `TrackRules.servo` + `TrackRules.step` (or Parkour's / 3D Terrain's) on a single env
+* numpy: `servo` + `step` of the env's rules (or Parkour's / 3D Terrain's) on a single env
   (size 1) or the batched env's rows (larger sizes), as the CPU path calls them;
-* torch: `servo` + `outcome` of the family's tensor rules on a many-world simulation on Warp's
-  CPU device (its first run compiles Warp's CPU kernels, then cached).
+* torch: `before_physics` + `servo` + `outcome` of the family's rules on torch on a many-world
+  simulation on Warp's CPU device (its first run compiles Warp's CPU kernels, then cached).
 Only the rules are timed; the physics does not step between calls (the rules only read it), so
 both read the same state every time. Ratios are torch / numpy at the same size.
 """
@@ -42,18 +43,12 @@ def numpy_rules(env: str, n: int, steps: int, rounds: int) -> float:
         rng = np.random.default_rng(0)
         actions = rng.uniform(-1.0, 1.0, (n, vec.action_size))
         vec.step(actions)
-        if n == 1:
-            sub = vec.envs[0]
-            caps = [sub.model.actuator_forcerange]
+        sub = vec.envs[0]
+        rules, rows = (sub.rules, sub.rows) if n == 1 else (vec.rules, vec.rows)
 
-            def call():
-                sub.rules.servo(actions, caps, vec.physics.controls)
-                sub.rules.step(vec.physics, actions, sub.rows)
-        else:
-
-            def call():
-                vec.rules.servo(actions, vec._caps, vec.physics.controls)
-                vec.rules.step(vec.physics, actions, vec.rows)
+        def call():
+            rules.servo(rules.before_physics(vec.physics, actions, rows), vec.physics)
+            rules.step(vec.physics, actions, rows)
 
         return best_of(call, steps, rounds)
     finally:
@@ -70,7 +65,7 @@ def torch_rules(env: str, n: int, steps: int, rounds: int) -> float:
         rules, sim, heights = worlds.rules, worlds.sim, worlds.heights
 
         def call():
-            rules.servo(actions, sim, heights)
+            rules.servo(rules.before_physics(sim, actions, heights), sim)
             rules.outcome(sim, actions, heights, worlds.prev_shaping)
 
         return best_of(call, steps, rounds)

@@ -57,7 +57,7 @@ def _assert_rules_agree(worlds) -> None:
     rules, physics = worlds.template.rules, WorldsAsNumpy(worlds.sim)
     rows = rules.new_rows(worlds.num_envs)
     rows.heights[:, ..., : worlds.heights.shape[-1]] = worlds.heights.double().numpy()
-    x_np, obs_np = rules.observe(physics, rows)
+    x_np, obs_np = rules.observe_rows(physics, rows)
     x_t, obs_t = worlds.rules.observe(worlds.sim, worlds.heights)
     assert obs_np.shape == (worlds.num_envs, worlds.observation_size)
     np.testing.assert_allclose(x_t.numpy(), x_np, rtol=1e-6, atol=1e-6)

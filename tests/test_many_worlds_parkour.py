@@ -109,7 +109,7 @@ def test_walkers_in_water_torch_rules_equal_numpy_rules(walkers):
         walkers.step(_actions(walkers, k))
     rules, physics = walkers.template.rules, WorldsAsNumpy(walkers)
     rows = numpy_rows(walkers, physics)
-    x_np, obs_np = rules.observe(physics, rows)
+    x_np, obs_np = rules.observe_rows(physics, rows)
     x_t, obs_t = walkers.rules.observe(walkers.sim, walkers.heights)
     assert obs_np[:, 4].all()  # under water
     assert (obs_np[:, -10:] == 1.0).any() and (obs_np[:, -10:] == 0.0).any()  # creepers, ceiling

@@ -96,7 +96,6 @@ class BatchedEnvs:
             self.rows = self.rules.new_rows(num_envs)
             for i, env in enumerate(self.envs):
                 env.rows = self.rows.row(i)
-            self._caps = [env.model.actuator_forcerange for env in self.envs]
         self._rows_physics = [self.physics.row(i) for i in range(num_envs)]
 
     # ------------------------------------------------------------------ resets
@@ -158,10 +157,10 @@ class BatchedEnvs:
         a = self.check_actions(actions)
         if self.vectorised:
             played = self.rules.before_physics(self.physics, a, self.rows)
-            self.rules.servo(played, self._caps, self.physics.controls)
+            self.rules.servo(played, self.physics)
             self._step_physics()
             obs, rewards, terminated, unstable = self.rules.step(self.physics, a, self.rows)
-            success = self.envs[0].successes(self.rows).tolist()
+            success = self.rows.success.tolist()
             infos = [{"success": s} for s in success]
             for i in unstable.nonzero()[0]:
                 infos[i]["unstable"] = True

@@ -75,7 +75,8 @@ class PhysicsState:
     """Steps one env's physics `nstep` substeps at a time and snapshots/restores it exactly.
 
     Also the physics backend of one env (N = 1, see `acl3d.envs.physics`): `controls`,
-    `field(name)` and `warnings` are (1, ...) views of its MjData.
+    `field(name)` and `warnings` are (1, ...) views of its MjData; `set_force_caps` writes its
+    model.
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, nstep: int):
@@ -93,6 +94,10 @@ class PhysicsState:
         if view is None:
             view = self._fields[name] = getattr(self.data, name)[None]
         return view
+
+    def set_force_caps(self, index, ranges: np.ndarray) -> None:
+        """Force ranges (1, len(index), 2) of actuators `index`, in this env's model."""
+        self.model.actuator_forcerange[index] = ranges[0]
 
     def row_data(self, i: int) -> mujoco.MjData:
         """The one env's MjData (the backend interface's per-simulation access)."""

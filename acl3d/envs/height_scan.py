@@ -7,14 +7,19 @@ Heights are interpolated bilinearly from the heightfield array itself (no ray ca
 is a few array operations for all points of all envs, whatever the terrain. Points off the field
 read its nearest edge. On the tracks the height line is the same across the track, so the scan
 sees it at every lateral offset.
+
+One implementation for every backend: `read_batch` is written over `ArrayOps` (numpy on the CPU,
+torch for the many-world simulation: `on(ops)`).
 """
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from acl3d.envs.arena import TRACK_HALF_WIDTH
+from acl3d.envs.array_ops import NUMPY, ArrayOps
 from acl3d.envs.lidar import TerrainSensor
 
 FORWARD = np.linspace(-1.0, 3.0, 9)  # metres along the heading: 1 m behind to 3 m ahead
@@ -36,6 +41,8 @@ class HeightScan(TerrainSensor):
     """
 
     reads_height_rows = True
+    ops: ArrayOps = NUMPY
+    _constants = ("_cos_part", "_sin_part", "_inv_cell", "_min")
 
     def __init__(self, arena, forward: np.ndarray = FORWARD, lateral: np.ndarray = LATERAL):
         self.arena = arena
@@ -47,38 +54,58 @@ class HeightScan(TerrainSensor):
         # metres -> grid cells, (row, column) = (y, x); a field's rows may lie further apart
         # than its columns (a track's two rows are equal: any row spacing reads the same)
         row_cell = g.cell if line else 2 * g.half_width / (self._shape[0] - 1)
-        self._inv_cell = 1.0 / np.array([[row_cell], [g.cell]])
+        inv_cell = 1.0 / np.array([[row_cell], [g.cell]])
+        self._inv_cell = inv_cell[:, 0]
         # a point's offset in grid cells, turned by the heading yaw:
         # cos(yaw) * (dy, dx) + sin(yaw) * (dx, -dy)
-        self._cos_part = np.stack((dy.ravel(), dx.ravel())) * self._inv_cell
-        self._sin_part = np.stack((dx.ravel(), -dy.ravel())) * self._inv_cell
+        self._cos_part = np.stack((dy.ravel(), dx.ravel())) * inv_cell
+        self._sin_part = np.stack((dx.ravel(), -dy.ravel())) * inv_cell
         self._min = np.array([y_min, g.x_min])
+        self._yx = np.array([1, 0])  # an origin's (y, x): the grid's (row, column)
         self.nb_rays = dx.size
 
-    def batch_heights(self, n: int) -> np.ndarray:
-        """Buffer of N envs' heights for `read_batch`: (N, rows, cols)."""
-        return np.zeros((n, *self._shape))
+    def on(self, ops: ArrayOps) -> HeightScan:
+        """This scan reading arrays of `ops` (the many-world simulation's tensors)."""
+        out = copy.copy(self)
+        out.ops = ops
+        for name in self._constants:
+            setattr(out, name, ops.asarray(getattr(self, name)))
+        out._yx = ops.index(self._yx)
+        return out
 
-    def read_batch(
-        self, heights: np.ndarray, origins: np.ndarray, rotations: np.ndarray
-    ) -> np.ndarray:
+    def batch_heights(self, n: int):
+        """Buffer of N envs' heights for `read_batch`: (N, rows, cols)."""
+        return self.ops.full((n, *self._shape), 0.0)
+
+    def read_batch(self, heights, origins, rotations):
         """(N, nb_rays) readings from heights (N, rows, cols), the roots' positions (N, 3) and
-        orientations (N, 9: row-major rotation matrices).
+        orientations (N, 9 or N, 3, 3: row-major rotation matrices).
 
         The heading is the root's forward axis projected on the ground (x and y of the matrix's
         first column), normalised; a body pointing straight up or down has none, and its scan
-        collapses onto its root. Every operation is element-wise per env, so each row is
-        bit-identical to the same env scanned alone, whatever N.
+        collapses onto its root. Heights are bilinear between the four surrounding samples,
+        points off the field read its nearest edge. Every operation is element-wise per env, so
+        each row is bit-identical to the same env scanned alone, whatever N.
         """
-        a, b = rotations[:, 0], rotations[:, 3]
-        norm = np.maximum(np.hypot(a, b), MIN_NORM)
-        shift = (origins[:, 1::-1] - self._min) * self._inv_cell[:, 0]  # (N, 2): (row, column)
+        ops, xp = self.ops, self.ops.xp
+        n = origins.shape[0]
+        m = rotations.reshape(n, 9)
+        a, b = m[:, 0], m[:, 3]
+        norm = ops.clip(xp.hypot(a, b), low=MIN_NORM)
+        shift = (origins[:, self._yx] - self._min) * self._inv_cell  # (N, 2): (row, column)
         coords = (
             (a / norm)[:, None, None] * self._cos_part
             + (b / norm)[:, None, None] * self._sin_part
             + shift[:, :, None]
-        )
-        out = np.empty((len(origins), self.nb_rays))
-        for i, c in enumerate(coords):  # bilinear, edge-clamped, in C
-            out[i] = map_coordinates(heights[i], c, order=1, mode="nearest", prefilter=False)
-        return out - origins[:, 2:3]
+        )  # (N, 2, points)
+        rows, cols = self._shape
+        r = ops.clip(coords[:, 0], 0.0, rows - 1.0)
+        c = ops.clip(coords[:, 1], 0.0, cols - 1.0)
+        r0 = ops.clip(xp.floor(r), high=rows - 2.0)
+        c0 = ops.clip(xp.floor(c), high=cols - 2.0)
+        fr, fc = r - r0, c - c0
+        flat = heights.reshape(n, rows * cols)
+        base = ops.to_int(r0) * cols + ops.to_int(c0)
+        top = ops.gather(flat, base) * (1.0 - fc) + ops.gather(flat, base + 1) * fc
+        bottom = ops.gather(flat, base + cols) * (1.0 - fc) + ops.gather(flat, base + cols + 1) * fc
+        return top * (1.0 - fr) + bottom * fr - origins[:, 2:3]

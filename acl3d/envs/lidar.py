@@ -7,10 +7,13 @@ the hit distance as a fraction of the range (1 = nothing within range). Only geo
 
 from __future__ import annotations
 
+import copy
 from typing import ClassVar, Protocol
 
 import mujoco
 import numpy as np
+
+from acl3d.envs.array_ops import NUMPY, ArrayOps, index_ids
 
 LIDAR_RANGE = 160 / 30  # 5.33 m
 LIDAR_TYPES = {"down": (1.5, 0.0), "up": (2.3, 1.5), "full": (np.pi, 0.0)}
@@ -30,12 +33,14 @@ class TerrainSensor(Protocol):
 
     nb_rays: int
     reads_height_rows: ClassVar[bool]
+    ops: ArrayOps  # the array library it reads (numpy, or torch after a sensor's `on(ops)`)
 
 
 class Lidar(TerrainSensor):
     """The rays cast by MuJoCo on one env's scene (whatever geoms it holds)."""
 
     reads_height_rows = False
+    ops: ArrayOps = NUMPY
 
     def __init__(self, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE):
         if kind not in LIDAR_TYPES:
@@ -91,12 +96,15 @@ class HeightLineLidar(Lidar):
     A track is a height line extruded across it, so a sagittal ray meets the terrain where the
     heightfield's centre line does: the piecewise-linear chain through the columns. From the
     origin, the first terrain point above ray i is the first column whose elevation slope
-    (h - z0) / (x - x0) reaches the ray's slope; with a running maximum of those slopes, one
-    `searchsorted` finds it for all rays, and the crossing is solved on the segment before it.
-    `mj_multiRay` instead visits every heightfield column. Forward/downward rays only ("down").
+    (h - z0) / (x - x0) reaches the ray's slope; with a running maximum of those slopes, a count
+    finds it for all rays, and the crossing is solved on the segment before it. `mj_multiRay`
+    instead visits every heightfield column. Forward/downward rays only ("down"). Written once
+    over `ArrayOps`: numpy for the CPU envs, torch for the many worlds (`on(ops)`).
     """
 
     reads_height_rows = True
+    _constants = ("_x_padded", "_slope", "_inv_sin")
+    _indices = ("_slanted", "_vertical", "_window")
 
     def __init__(
         self, arena, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE
@@ -109,116 +117,77 @@ class HeightLineLidar(Lidar):
             )
         self.arena = arena
         self._x_min, self._cell, self._ncol = arena.grid.x_min, arena.grid.cell, arena.grid.ncol
-        self._x = arena.grid.x
         vertical = sin <= 1e-12
-        self._vertical = np.flatnonzero(vertical)
-        self._slanted = np.flatnonzero(~vertical)
-        sin_s = sin[self._slanted]
+        self._vertical = NUMPY.index(np.flatnonzero(vertical))  # slices where contiguous
+        self._slanted = NUMPY.index(np.flatnonzero(~vertical))
+        sin_s = sin[~vertical]
         self._slope = -cos[self._slanted] / sin_s  # dz/dx of each slanted ray, increasing
         self._inv_sin = 1.0 / sin_s
         self._reach = int(np.ceil(ray_range * sin.max() / self._cell)) + 2
+        self._window = np.arange(self._reach + 2)
+        self._width = self._ncol + self._reach + 1
+        x = arena.grid.x
+        self._x_padded = np.concatenate(
+            (x, x[-1] + self._cell * np.arange(1, self._width - self._ncol + 1))
+        )
         self._terrain_geom = arena.model.geom("terrain").id
-        self._no_hit = np.full(nb_rays, np.inf)
-        self._batch_n = 0
+
+    def on(self, ops: ArrayOps) -> HeightLineLidar:
+        """This lidar reading arrays of `ops` (the many-world simulation's tensors)."""
+        out = copy.copy(self)
+        out.ops = ops
+        for name in self._constants:
+            setattr(out, name, ops.asarray(getattr(self, name)))
+        for name in self._indices:
+            setattr(out, name, ops.index(index_ids(getattr(self, name))))
+        return out
 
     def read(self, model, data, origin) -> np.ndarray:
-        out = self.read_heights(self.arena.heights, origin)
+        heights = self.batch_heights(1)
+        heights[0, : self._ncol] = self.arena.heights
+        out = self.read_batch(heights, np.asarray(origin, dtype=float)[None])[0]
         self.geom_ids[:] = np.where(out < 1.0, self._terrain_geom, -1)
         return out
 
-    def read_heights(self, heights: np.ndarray, origin: np.ndarray) -> np.ndarray:
-        """The rays from `origin` on the height line `heights` (the grid's columns, or more).
-
-        The step's hot path at N = 1: few numpy calls (hits are a prefix of the rays, because
-        both the running maximum and the rays' slopes increase, so they are sliced, not masked).
-        """
-        x0, z0 = float(origin[0]), float(origin[2])
-        j = min(max(int((x0 - self._x_min) / self._cell), 0), self._ncol - 2)
-        frac = (x0 - self._x[j]) / self._cell
-        h0 = heights[j] + frac * (heights[j + 1] - heights[j])  # terrain right under the origin
-        if z0 <= h0:  # origin inside the terrain: every ray hits at once
-            return np.zeros(self.nb_rays)
-        stop = min(j + 1 + self._reach, self._ncol)
-        xs = np.concatenate(((x0,), self._x[j + 1 : stop]))
-        hs = np.concatenate(((h0,), heights[j + 1 : stop]))
-        rise = (hs[1:] - z0) / (xs[1:] - x0)
-        np.maximum.accumulate(rise, out=rise)
-        k = rise.searchsorted(self._slope)  # segment (k, k+1) holds the crossing
-        hits = int(k.searchsorted(len(rise)))  # k never decreases: the first `hits` rays hit
-        dist = self._no_hit.copy()
-        if hits:
-            k = k[:hits]
-            after = k + 1
-            xa, ha = xs[k], hs[k]
-            m = (hs[after] - ha) / (xs[after] - xa)
-            s = self._slope[:hits]
-            x_hit = (z0 - ha + m * xa - s * x0) / (m - s)
-            dist[self._slanted[:hits]] = (x_hit - x0) * self._inv_sin[:hits]
-        dist[self._vertical] = z0 - h0
-        return np.where(dist <= self.range, dist * self._inv_range, 1.0)
-
-    def batch_heights(self, n: int) -> np.ndarray:
+    def batch_heights(self, n: int):
         """Buffer for `read_batch`: N height lines of the grid's columns, then a -inf margin (the
         columns past the track end, which no ray crosses)."""
-        out = np.full((n, self._ncol + self._reach + 1), -np.inf)
+        out = self.ops.full((n, self._width), -np.inf)
         out[:, : self._ncol] = 0.0
         return out
 
-    def read_batch(
-        self, heights: np.ndarray, origins: np.ndarray, rotations: np.ndarray | None = None
-    ) -> np.ndarray:
-        """`read` for N envs at once: heights from `batch_heights`, origins (N, 3); the roots'
-        orientations (`rotations`, the height scan's) are not used: the rays stay sagittal.
+    def read_batch(self, heights, origins, rotations=None):
+        """The rays of N envs: heights from `batch_heights`, origins (N, 3) -> (N, nb_rays)
+        fractions of the range (1: no hit); the roots' orientations (`rotations`, the height
+        scan's) are not used: the rays stay sagittal.
 
-        Element by element the same arithmetic as `read` (no reductions that sum), so each row
-        is bit-identical to `read` on that env alone, whatever N.
+        For each ray, the crossed segment ends at the first column whose running maximum
+        elevation slope reaches the ray's slope: as both increase, that is how many columns stay
+        below it. Element by element the arithmetic does not depend on N (no sums across
+        envs), so each row is bit-identical to the same env read alone.
         """
-        n, width = heights.shape
-        if n == 1:  # one searchsorted beats the counting below (same results, tested)
-            return self.read_heights(heights[0], origins[0])[None]
-        if self._batch_n != n:
-            self._batch_setup(n, width)
-        flat, base, reach = heights.reshape(-1), self._base, self._reach
-        x0, z0 = origins[:, 0], origins[:, 2]
-        j = ((x0 - self._x_min) / self._cell).astype(np.int64)
-        np.minimum(np.maximum(j, 0, out=j), self._ncol - 2, out=j)  # np.clip costs 6x more
-        hj, hj1 = flat[base + j], flat[base + j + 1]
-        frac = (x0 - self._x[j]) / self._cell
-        h0 = hj + frac * (hj1 - hj)
-        cols = j[:, None] + self._window
-        x0c, z0c = x0[:, None], z0[:, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rise = (flat[base[:, None] + cols] - z0c) / (self._x_padded[cols] - x0c)
-        np.maximum.accumulate(rise, axis=1, out=rise)
-        # k = first column whose running max reaches the ray's slope (segment (k, k + 1)), i.e.
-        # how many columns stay below it: count the columns by how many slopes they reach
-        reached = np.searchsorted(self._slope, rise, side="right") + self._count_rows
-        k = np.bincount(reached.ravel(), minlength=self._count_size).reshape(n, -1)
-        k = k.cumsum(axis=1)[:, :-1]
-        hit = k < reach
-        b = j[:, None] + 1 + k  # the column ending the crossed segment
-        first = k == 0
-        xa = np.where(first, x0c, self._x_padded[b - 1])
-        ha = np.where(first, h0[:, None], flat[base[:, None] + b - 1])
-        xb, hb = self._x_padded[b], flat[base[:, None] + b]
-        s = self._slope
-        with np.errstate(divide="ignore", invalid="ignore"):
+        ops, xp = self.ops, self.ops.xp
+        n, rays = heights.shape[0], self._slope.shape[0]
+        x0, z0 = origins[:, 0:1], origins[:, 2:3]  # (N, 1)
+        j = ops.clip(ops.to_int((x0 - self._x_min) / self._cell), 0, self._ncol - 2)
+        cols = j + self._window  # the origin's column, then those a ray may cross
+        hs, xs = ops.gather(heights, cols), self._x_padded[cols]
+        frac = (x0 - xs[:, 0:1]) / self._cell
+        h0 = hs[:, 0:1] + frac * (hs[:, 1:2] - hs[:, 0:1])  # the terrain right under the origin
+        # the chain from the origin's foot: (x0, h0), then the columns past it
+        xs = xp.concatenate((x0, xs[:, 1:]), axis=1)
+        hs = xp.concatenate((h0, hs[:, 1:]), axis=1)
+        with ops.quiet():  # a column at x0 itself, or a segment parallel to a ray: no hit there
+            rise = (hs[:, 1:-1] - z0) / (xs[:, 1:-1] - x0)
+            k = ops.count_below(ops.running_max(rise), self._slope)
+            ends = xp.concatenate((k, k + 1), axis=1)  # the crossed segment: points k and k + 1
+            xe, he = ops.gather(xs, ends), ops.gather(hs, ends)
+            xa, xb, ha, hb = xe[:, :rays], xe[:, rays:], he[:, :rays], he[:, rays:]
+            s = self._slope
             m = (hb - ha) / (xb - xa)
-            x_hit = (z0c - ha + m * xa - s * x0c) / (m - s)
-        dist = self._dist_buffer
-        dist[:, self._slanted] = np.where(hit, (x_hit - x0c) * self._inv_sin, np.inf)
-        dist[:, self._vertical] = (z0 - h0)[:, None]
-        out = np.where(dist <= self.range, dist * self._inv_range, 1.0)
-        out[z0 <= h0] = 0.0  # origin inside the terrain: every ray hits at once
-        return out
-
-    def _batch_setup(self, n: int, width: int) -> None:
-        self._batch_n = n
-        self._base = np.arange(n) * width
-        self._window = 1 + np.arange(self._reach)
-        pad = self._x[-1] + self._cell * np.arange(1, width - self._ncol + 1)
-        self._x_padded = np.concatenate((self._x, pad))
-        nb = len(self._slope)
-        self._count_rows = np.arange(n)[:, None] * (nb + 1)
-        self._count_size = n * (nb + 1)
-        self._dist_buffer = np.empty((n, self.nb_rays))
+            x_hit = (z0 - ha + m * xa - s * x0) / (m - s)
+        dist = ops.full((n, self.nb_rays), 0.0)
+        dist[:, self._slanted] = xp.where(k < self._reach, (x_hit - x0) * self._inv_sin, np.inf)
+        dist[:, self._vertical] = z0 - h0
+        out = xp.where(dist <= self.range, dist * self._inv_range, 1.0)
+        return xp.where(z0 <= h0, 0.0, out)  # the origin is inside the terrain

@@ -120,15 +120,14 @@ class ManyWorlds:
         )
         self.rules = family.rules
         n, f = self.num_envs, {"device": self.device, "dtype": self.sim.dtype}
-        self.heights = self.rules.sensor.empty_heights(n, **f)
-        self._start_heights = self.rules.sensor.empty_heights(start_worlds, **f)
+        self.heights = self.rules.lidar.batch_heights(n)
+        self._start_heights = self.rules.lidar.batch_heights(start_worlds)
         self.prev_shaping = torch.zeros(n, **f)
         self.elapsed = torch.zeros(n, dtype=torch.long, device=self.device)
         self.stats = EpisodeStatistics(n, self.task_space.dim, device=self.device)
         self.tasks = np.tile(self.task_space.to_vector({}), (n, 1))
         self._generator = torch.Generator(device=self.device)
         self._rngs: list = []  # per-world streams of a CPU terrain generator
-        self._success_return = env.curriculum_profile.success_return
         self._home_qpos, self._push_scale = self._home_state()
         self.obs = torch.zeros((n, self.observation_size), **f)
 
@@ -219,20 +218,19 @@ class ManyWorlds:
                 f"got {tuple(actions.shape)}"
             )
         a = actions.to(self.device, self.sim.dtype)
-        self.rules.servo(a, self.sim, self.heights)
+        played = self.rules.before_physics(self.sim, a, self.heights)
+        self.rules.servo(played, self.sim)
         self.sim.step()
-        obs, reward, terminated, shaping, crossed = self.rules.outcome(
-            self.sim, a, self.heights, self.prev_shaping
-        )
-        self.prev_shaping = shaping
-        unstable = ~torch.isfinite(obs).all(dim=1) | ~torch.isfinite(reward)
-        obs = obs.masked_fill(unstable[:, None], 0.0)
-        reward = reward.masked_fill(unstable, 0.0)
-        terminated |= unstable
+        out = self.rules.outcome(self.sim, a, self.heights, self.prev_shaping)
+        self.prev_shaping = out.shaping
+        unstable = ~torch.isfinite(out.obs).all(dim=1) | ~torch.isfinite(out.reward)
+        obs = out.obs.masked_fill(unstable[:, None], 0.0)
+        reward = out.reward.masked_fill(unstable, 0.0)
+        terminated = out.terminated | unstable
         self.elapsed += 1
         truncated = (self.elapsed >= self.max_episode_steps) & ~terminated
         returns = self.stats.returns + reward.double()
-        success = returns > self._success_return if crossed is None else crossed
+        success = self.rules.success(returns, out)
         infos = {
             "final_obs": obs,
             "success": success,

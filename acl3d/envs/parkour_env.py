@@ -131,6 +131,7 @@ class ParkourComposition:
             ParkourLidar(self._lidar, arena),
             arena,
             arena.generator.end_x,
+            self.profile.success_return,
             self.end_on_death,
         )
 

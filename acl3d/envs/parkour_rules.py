@@ -21,9 +21,10 @@ import numpy as np
 
 from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
+from acl3d.envs.array_ops import NUMPY, ArrayOps
 from acl3d.envs.climbing import after_steps, before_steps
 from acl3d.envs.lidar import LIDAR_RANGE, LIDAR_TYPES, NB_RAYS, TerrainSensor
-from acl3d.envs.track_rules import FAIL_REWARD, EpisodeRows, TrackRules, torque_use
+from acl3d.envs.track_rules import FAIL_REWARD, EpisodeRows, Outcome, TrackRules, torque_use
 
 SURVIVAL_STEPS = 600
 SURVIVAL_KEYS = ("steps_under_water", "steps_out_of_water", "dead", "under_water")
@@ -46,6 +47,7 @@ class ParkourLidar(TerrainSensor):
     """
 
     reads_height_rows = False  # it reads the ground, ceiling and water rows of `ParkourRules`
+    ops: ArrayOps = NUMPY
 
     def __init__(self, kind: str, arena, nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE):
         if kind not in LIDAR_TYPES:
@@ -211,13 +213,14 @@ class ParkourRules(TrackRules):
         lidar: ParkourLidar,
         arena,
         end_x: float,
+        success_return: float,
         end_on_death: bool = False,
         survival_steps: int = SURVIVAL_STEPS,
     ):
         self.arena = arena  # this env's: its terrain goes to its row at each reset
         self.climber = arena.climbing is not None
         self._nb_grasp = len(bound.body.grasp_sensors)
-        super().__init__(bound, lidar, end_x)
+        super().__init__(bound, lidar, end_x, success_return)
         body = bound.body
         self.kind = body.kind
         critical = bound.critical_geom_ids
@@ -312,7 +315,7 @@ class ParkourRules(TrackRules):
         return died
 
     # ------------------------------------------------------------------ observation
-    def observe(self, physics, rows) -> tuple[np.ndarray, np.ndarray]:
+    def observe_rows(self, physics, rows) -> tuple[np.ndarray, np.ndarray]:
         obs = np.zeros((len(rows.dead), self.obs_size))
         col = self.head_size
         x = self.head(physics, obs[:, :col])
@@ -344,22 +347,21 @@ class ParkourRules(TrackRules):
         more = touching[:, self._critical_any] > touching[:, self._critical_ceiling]
         return np.logical_or.reduce(more, axis=1)
 
-    def outcome(self, physics, actions: np.ndarray, rows):
+    def outcome_rows(self, physics, actions: np.ndarray, rows) -> Outcome:
         if self.climber:
             climbings = [arena.climbing for arena in rows.arenas]
             xpos, xmat = physics.field("geom_xpos"), physics.field("geom_xmat")
             after_steps(climbings, physics.row_data, xpos, xmat)
         alive = ~rows.dead  # a dead body plays zero actions, which cost nothing
         died = self._update_survival(physics, rows)
-        x, obs = self.observe(physics, rows)
+        x, obs = self.observe_rows(physics, rows)
         shaping = self.shaping(x, obs[:, 0])
         reward = shaping - rows.prev_shaping
-        rows.prev_shaping[:] = shaping
-        cost = self.body.torque_cost_per_unit * torque_use(actions)
+        cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
         reward[alive] -= cost[alive]
-        rows.critical_contact[:] = self.critical_touch(physics)
-        fail = rows.critical_contact | (x < 0.0)
+        critical = self.critical_touch(physics)
+        fail = critical | (x < 0.0)
         terminated = fail | (x > self.end_x)
         if self.end_on_death:
             terminated |= died
-        return obs, np.where(fail, FAIL_REWARD, reward), terminated
+        return Outcome(obs, np.where(fail, FAIL_REWARD, reward), terminated, shaping, critical)

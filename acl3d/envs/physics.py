@@ -8,6 +8,8 @@ physics only through this interface, so the same code serves one env and a batch
   fields of the last step (xpos, xmat, cvel, sensordata), which, as after `mj_step`, describe
   the state the last substep started from;
 * `warnings`: (N, mjNWARNING) warning counts (MuJoCo resets a diverged simulation and counts it);
+* `set_force_caps(index, ranges)`: actuators `index` of simulation i get the force ranges
+  `ranges[i]` (servo caps, written in each simulation's own model);
 * `models[i]`: simulation i's own compiled model, whose fields the envs write in place between
   steps (heightfields, servo force caps, weld anchors): every env compiles its own model;
 * `row_data(i)`: MjData-like access to simulation i alone, for the per-env rules that write
@@ -66,6 +68,10 @@ class BatchPhysics:
     def field(self, name: str) -> np.ndarray:
         """Live (N, ...) array of an MjData field named in the constructor's `fields`."""
         return self._fields[name]
+
+    def set_force_caps(self, index, ranges: np.ndarray) -> None:
+        for model, r in zip(self.models, ranges):
+            model.actuator_forcerange[index] = r
 
     def step(self) -> None:
         """`nstep` substeps of every simulation, remembering the rows they started from."""
@@ -137,6 +143,9 @@ class RowPhysics:
     def field(self, name: str) -> np.ndarray:
         """Live (1, ...) array of a bound MjData field."""
         return self._fields[name]
+
+    def set_force_caps(self, index, ranges: np.ndarray) -> None:
+        self.model.actuator_forcerange[index] = ranges[0]
 
     def row_data(self, i: int) -> RowData:
         return self.data

@@ -4,8 +4,10 @@ The arithmetic of `ParkourRules` (survival counters, dead bodies playing zeros, 
 against anything but the ceiling), `ParkourLidar` (rays on the ground and ceiling lines, the
 creeper boxes and the water plane, with surface flags), `Water.apply` (buoyancy, drag, lift and
 swimming thrust per geom's sagittal rectangle) and `Climbing` (touch, grab, release), for all
-worlds at once with no per-world Python and no host round trip. Constants come from the compiled
-numpy rules; tests/test_many_worlds_parkour.py checks both agree on the same physics.
+worlds at once with no per-world Python and no host round trip. The tracks' part (head, motor
+state, shaping, servos) is `TrackRules`' own arithmetic on torch; the rest reads its constants
+from the compiled numpy rules; tests/test_many_worlds_parkour.py checks both agree on the same
+physics.
 
 Each world's episode lives in one float row, its *record* (`ParkourRecord`: ground and ceiling
 lines, water level, creeper boxes, survival counters, grasp flags and anchors, the water forces
@@ -21,12 +23,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from acl3d.envs.array_ops import TorchOps
 from acl3d.envs.climbing import CEILING_MARGIN, TOUCH_MARGIN
 from acl3d.envs.parkour_arena import CEILING_RANGE, CREEPER_HALF_DEPTH
 from acl3d.envs.parkour_rules import CREEPER_FLAG, WATER_FLAG, ParkourLidar, ParkourRules
-from acl3d.envs.tensor_track_rules import TensorTrackRules, _index, torque_use
 from acl3d.envs.tensor_water import TensorWater
-from acl3d.envs.track_rules import FAIL_REWARD
+from acl3d.envs.track_rules import FAIL_REWARD, Outcome, TrackRules, torque_use
 from acl3d.sim.worlds import Simulation
 
 _BOX_MIN_DIRECTION = 1e-12  # as ParkourLidar: a ray parallel to a box face
@@ -73,9 +75,14 @@ class ParkourRecord:
 
 
 class TensorParkourLidar:
-    """`ParkourLidar` on tensors: reads (N, 2 rays): fractions then surface flags."""
+    """`ParkourLidar` on tensors: reads (N, 2 rays): fractions then surface flags, from the
+    worlds' records (its rows of heights)."""
 
-    def __init__(self, lidar: ParkourLidar, record: ParkourRecord, device, dtype):
+    reads_height_rows = True
+
+    def __init__(self, lidar: ParkourLidar, record: ParkourRecord, ops: TorchOps):
+        self.ops = ops
+        device, dtype = ops.device, ops.dtype
         f = {"device": device, "dtype": dtype}
         self.record, self.rays, self.range = record, lidar.nb_rays, lidar.range
         self.nb_rays = 2 * lidar.nb_rays
@@ -89,10 +96,10 @@ class TensorParkourLidar:
         self.box_d = torch.where(d.abs() < _BOX_MIN_DIRECTION, _BOX_MIN_DIRECTION, d)
         self.inv_down = torch.as_tensor(lidar._inv_down).to(**f)
 
-    def empty_heights(self, n: int, device, dtype) -> torch.Tensor:
-        return torch.zeros((n, self.record.width), device=device, dtype=dtype)
+    def batch_heights(self, n: int) -> torch.Tensor:
+        return self.ops.full((n, self.record.width), 0.0)
 
-    def read(self, record: torch.Tensor, origins: torch.Tensor, rotations=None) -> torch.Tensor:
+    def read_batch(self, record: torch.Tensor, origins: torch.Tensor, rotations=None):
         x0, z0 = origins[:, 0], origins[:, 2]
         best = self._surface_hits(record, x0, z0).clamp(max=self.range)
         flags = torch.zeros_like(best)
@@ -160,49 +167,50 @@ class TensorParkourLidar:
         return torch.where(hit, t_in, torch.inf).amin(dim=2)
 
 
-class TensorParkourRules(TensorTrackRules):
+class TensorParkourRules(TrackRules):
     """Parkour's rules for N worlds of a `Simulation` (see the module docstring).
 
     Args:
         rules: the compiled env's `ParkourRules` (static creepers).
-        device, dtype: where and in which precision the worlds' tensors live.
+        ops: the torch device and precision the worlds' tensors live in.
     """
 
-    def __init__(self, rules: ParkourRules, device: torch.device, dtype=torch.float32):
+    def __init__(self, rules: ParkourRules, ops: TorchOps):
         arena = rules.arena
+        device, dtype = ops.device, ops.dtype
         self.climbing = arena.climbing
         hands = self.climbing.nb_sensors if self.climbing else 0
         self.water = TensorWater(arena.water, device, dtype)
         self.record = ParkourRecord(
             arena.grid.ncol, len(arena.creeper_geoms), hands, len(self.water.body_ids)
         )
-        self._lidar = rules.lidar
-        super().__init__(rules, device, dtype)
+        sensor = TensorParkourLidar(rules.lidar, self.record, ops)
+        super().__init__(rules.bound, sensor, rules.end_x, rules.success_return)
         f = {"device": device, "dtype": dtype}
+        self.device, self.dtype = device, dtype
         self.hands, self.kind, self.end_on_death = hands, rules.kind, rules.end_on_death
         self.survival_steps = rules.survival_steps
-        self.critical_any = _index(rules._critical_any, device)
-        self.critical_ceiling = _index(rules._critical_ceiling, device)
+        self.critical_any = ops.index(rules._critical_any)
+        self.critical_ceiling = ops.index(rules._critical_ceiling)
         self.ceiling_lo, self.ceiling_hi = CEILING_RANGE
         if hands:
             c = self.climbing
-            self.hand_geoms, self.eq_ids = _index(c.geom_ids, device), _index(c.eq_ids, device)
+            self.hand_geoms, self.eq_ids = ops.index(c.geom_ids), ops.index(c.eq_ids)
             self.radius = torch.as_tensor(c.radius).to(**f)
             self.weld = torch.zeros((hands, 12), **f)  # hand point, identity quaternion
             self.weld[:, 3:6] = torch.as_tensor(c.local_point).to(**f)
             self.weld[:, 6] = 1.0  # torquescale 0 (column 10): the grasp pins a point only
 
-    def make_sensor(self, rules):
-        return TensorParkourLidar(self._lidar, self.record, self.device, self.dtype)
+    def extra_obs_size(self) -> int:
+        return 2  # under water, dead (the lidar's reading holds the surface flags)
 
     # ------------------------------------------------------------------ before physics
-    def servo(self, actions: torch.Tensor, sim: Simulation, heights: torch.Tensor) -> None:
-        """Dead bodies play zeros; climbers release what their grasp actions let go; then the
+    def before_physics(self, sim: Simulation, actions: torch.Tensor, heights: torch.Tensor):
+        """Dead bodies play zeros; climbers release what their grasp actions let go; the
         world's Parkour fields are written from its record (see the module docstring)."""
         rec = self.record
         dead = rec(heights, "survival")[:, 2:3] > 0.0
         actions = actions.masked_fill(dead, 0.0)
-        super().servo(actions, sim, heights)
         ceiling = rec(heights, "ceiling")
         rows = ((self.ceiling_hi - ceiling) / (self.ceiling_hi - self.ceiling_lo)).clamp(0.0, 1.0)
         sim.terrain("ceiling").copy_(rows[:, None, :].expand_as(sim.terrain("ceiling")))
@@ -217,6 +225,7 @@ class TensorParkourRules(TensorTrackRules):
             weld = self.weld.expand(len(actions), -1, -1).clone()
             weld[..., 0:3] = rec(heights, "anchors").unflatten(1, (-1, 3))
             sim.weld_anchors()[:, self.eq_ids] = weld
+        return actions
 
     # ------------------------------------------------------------------ after physics
     def _grasp(self, sim: Simulation, record: torch.Tensor) -> None:
@@ -246,7 +255,7 @@ class TensorParkourRules(TensorTrackRules):
 
     def _line_at(self, line: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """A line on the grid's columns (N, ncol) at x (N, k), linear, constant past its ends."""
-        s = self.sensor
+        s = self.lidar
         u = ((x - s.x_min) / s.cell).clamp(0.0, s.ncol - 1)
         j = u.floor().long().clamp(max=s.ncol - 2)
         a, b = line.gather(1, j), line.gather(1, j + 1)
@@ -256,7 +265,7 @@ class TensorParkourRules(TensorTrackRules):
         """Count consecutive steps in/out of water; (N,) flags: the body died this step."""
         survival = self.record(record, "survival")
         below, above, dead = survival.unbind(1)
-        under = sim.field("xpos")[:, self.root, 2] <= self.record(record, "water")[:, 0]
+        under = sim.field("xpos")[:, self._root, 2] <= self.record(record, "water")[:, 0]
         alive = dead == 0.0
         below = torch.where(alive, torch.where(under, below + 1, 0.0), below)
         above = torch.where(alive, torch.where(under, 0.0, above + 1), above)
@@ -273,8 +282,8 @@ class TensorParkourRules(TensorTrackRules):
         """Parkour's layout: head, under water, dead, motor state, per hand (touching, holding),
         lidar fractions, surface flags."""
         x, track = super().observe(sim, heights)  # head, motor state, zero grasps, readings
-        rec, head, grasp = self.record, self.head_size, self.lidar_col - self.grasp_size
-        under = sim.field("xpos")[:, self.root, 2] <= rec(heights, "water")[:, 0]
+        rec, head, grasp = self.record, self.head_size, self._lidar_col - self.grasp_size
+        under = sim.field("xpos")[:, self._root, 2] <= rec(heights, "water")[:, 0]
         dead = rec(heights, "survival")[:, 2]
         hands = torch.stack((rec(heights, "touching"), rec(heights, "holding")), 2).flatten(1)
         obs = torch.cat(
@@ -284,7 +293,7 @@ class TensorParkourRules(TensorTrackRules):
                 dead[:, None],
                 track[:, head:grasp],
                 hands,
-                track[:, self.lidar_col : self.lidar_col + self.sensor.nb_rays],
+                track[:, self._lidar_col : self._lidar_col + self.lidar.nb_rays],
             ),
             dim=1,
         )
@@ -297,7 +306,7 @@ class TensorParkourRules(TensorTrackRules):
         touch = sim.field("sensordata")
         return (touch[:, self.critical_any] > touch[:, self.critical_ceiling]).any(dim=1)
 
-    def outcome(self, sim: Simulation, actions, heights, prev_shaping):
+    def outcome(self, sim: Simulation, actions, heights, prev_shaping) -> Outcome:
         rec = self.record
         if self.hands:
             self._grasp(sim, heights)
@@ -305,12 +314,14 @@ class TensorParkourRules(TensorTrackRules):
         died = self._survive(sim, heights)
         x, obs = self.observe(sim, heights)
         shaping = self.potential(sim, x, obs)
-        cost = self.body.torque_cost_per_unit * torque_use(actions)
+        cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
         reward = shaping - prev_shaping - torch.where(alive, cost, 0.0)
-        fail = self.critical(sim) | (x < 0.0)
+        critical = self.critical(sim)
+        fail = critical | (x < 0.0)
         terminated = fail | (x > self.end_x)
         if self.end_on_death:
             terminated = terminated | died
         level = rec(heights, "water")[:, 0]
         rec(heights, "forces").copy_(self.water.forces(sim, level).flatten(1))
-        return obs, torch.where(fail, FAIL_REWARD, reward), terminated, shaping, None
+        reward = torch.where(fail, FAIL_REWARD, reward)
+        return Outcome(obs, reward, terminated, shaping, critical)

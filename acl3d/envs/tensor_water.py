@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import torch
 
-from acl3d.envs.tensor_track_rules import _index
 from acl3d.envs.water import DRAG_MOD, LIFT_MOD, MAX_DRAG, MAX_LIFT, PUSH_MOD, Water
 from acl3d.sim.worlds import Simulation
+
+
+def _index(values, device) -> torch.Tensor:
+    return torch.as_tensor(values, dtype=torch.long, device=device)
 
 
 class TensorWater:

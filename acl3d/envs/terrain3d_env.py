@@ -11,8 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import numpy as np
-
 from acl3d import validation
 from acl3d.bodies.base import Body
 from acl3d.envs.profiles import TERRAIN3D
@@ -64,10 +62,6 @@ class Terrain3DEnv(TrackEnv):
             dict(width=width, height=height, camera=camera, quality=quality),
         )
         self.observation = observation
-
-    def successes(self, rows) -> np.ndarray:
-        """(N,) success flags: the episodes in `rows` crossed the finish line at the last step."""
-        return rows.crossed.copy()
 
 
 class Terrain3DComposition:

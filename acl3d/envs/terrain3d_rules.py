@@ -11,21 +11,22 @@ The tracks' rules, widened to a body that can turn and drift:
 
 The observation is the tracks' head and motor state, then the terrain sensor (the height scan by
 default, or the sagittal lidar cast by MuJoCo), then the lateral position y / half width.
-The arithmetic is written on arrays so that it applies to one env or N envs alike.
+Written once over `ArrayOps`, as the tracks' rules: numpy for one env or N, torch for the many
+worlds (`on(ops)`).
 """
 
 from __future__ import annotations
 
-import numpy as np
-
 from acl3d.bodies.base import BoundBody
+from acl3d.envs.array_ops import ArrayOps
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import Lidar
 from acl3d.envs.track_rules import (
     ANGLE_PENALTY,
     FAIL_REWARD,
-    EpisodeRows,
+    Outcome,
     TrackRules,
+    _sensor_on,
     torque_use,
 )
 
@@ -34,69 +35,55 @@ HEADING_PENALTY = 5.0  # per radian of yaw away from +x
 DRIFT_PENALTY = 5.0  # per metre of |y| away from the field's centre line
 
 
-def shaping(x, y, pitch, yaw, head_angle_reward: bool):
-    """The potential whose differences reward a step (arrays or floats)."""
-    s = PROGRESS_GAIN * x - HEADING_PENALTY * abs(yaw) - DRIFT_PENALTY * abs(y)
-    if head_angle_reward:
-        s = s - ANGLE_PENALTY * abs(pitch)
-    return s
-
-
-def outcome(x, y, critical, end_x: float, half_width: float):
-    """(failed, crossed) flags: failure wins over crossing (arrays or floats)."""
-    failed = critical | (x < 0.0) | (abs(y) > half_width)
-    return failed, (x > end_x) & np.logical_not(failed)
-
-
 class Terrain3DRules(TrackRules):
-    """Observation, reward and termination of N envs of one body on the 3D field.
-
-    Its rows add `crossed`, the flag of the last step (the success of an episode that ended
-    there), which the env reports as `info["success"]`.
-    """
+    """Observation, reward, termination and success of N envs of one body on the 3D field:
+    success is crossing the finish line (`Outcome.crossed`)."""
 
     def __init__(self, bound: BoundBody, sensor, half_width: float, end_x: float):
         self.half_width = half_width
         super().__init__(bound, sensor, end_x)
 
+    def on(self, ops: ArrayOps) -> Terrain3DRules:
+        sensor = _sensor_on(self.lidar, ops)
+        return Terrain3DRules(self.bound, sensor, self.half_width, self.end_x)
+
     def extra_obs_size(self) -> int:
         return 1  # y / half width
-
-    def new_rows(self, n: int) -> EpisodeRows:
-        rows = super().new_rows(n)
-        rows.crossed = np.zeros(n, dtype=bool)
-        return rows
 
     def _pose(self, physics, obs) -> tuple:
         """(y, pitch, yaw) of the root, (N,) each; a planar body stays at y = 0 facing +x."""
         if self.body.planar:
-            return 0.0, obs[:, 0], 0.0
+            zero = self.ops.xp.zeros_like(obs[:, 0])
+            return zero, obs[:, 0], zero
         return physics.field("xpos")[:, self.bound.root_id, 1], obs[:, 0], obs[:, 5]
 
-    def observe(self, physics, rows) -> tuple[np.ndarray, np.ndarray]:
-        x, obs = super().observe(physics, rows)
+    def observe(self, physics, heights):
+        x, obs = super().observe(physics, heights)
         obs[:, -1] = physics.field("xpos")[:, self.bound.root_id, 1] / self.half_width
         return x, obs
 
-    def potential(self, physics, x, obs) -> np.ndarray:
+    def potential(self, physics, x, obs):
+        """15 x - 5 |yaw| - 5 |y| (- 5 |pitch| for bodies with the head-angle term)."""
+        xp = self.ops.xp
         y, pitch, yaw = self._pose(physics, obs)
-        return shaping(x, y, pitch, yaw, self.body.head_angle_reward)
+        s = PROGRESS_GAIN * x - HEADING_PENALTY * xp.abs(yaw) - DRIFT_PENALTY * xp.abs(y)
+        if self.body.head_angle_reward:
+            s = s - ANGLE_PENALTY * xp.abs(pitch)
+        return s
 
-    def reset_rows(self, physics, rows) -> np.ndarray:
-        rows.crossed[:] = False
-        return super().reset_rows(physics, rows)
-
-    def outcome(self, physics, actions: np.ndarray, rows):
-        x, obs = self.observe(physics, rows)
-        s = self.potential(physics, x, obs)
-        reward = s - rows.prev_shaping
-        rows.prev_shaping[:] = s
-        reward -= self.body.torque_cost_per_unit * torque_use(actions)
-        critical = self.touched(physics, self._critical_sensors).any(axis=1)
-        rows.critical_contact[:] = critical
+    def outcome(self, physics, actions, heights, prev_shaping) -> Outcome:
+        """Failure (critical contact, x < 0, |y| past the half width) wins over crossing."""
+        xp = self.ops.xp
+        x, obs = self.observe(physics, heights)
+        shaping = self.potential(physics, x, obs)
+        cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
+        reward = shaping - prev_shaping - cost
+        critical = self.critical(physics)
         y = self._pose(physics, obs)[0]
-        failed, rows.crossed[:] = outcome(x, y, critical, self.end_x, self.half_width)
-        return obs, np.where(failed, FAIL_REWARD, reward), failed | rows.crossed
+        failed = critical | (x < 0.0) | (xp.abs(y) > self.half_width)
+        crossed = (x > self.end_x) & ~failed
+        reward = xp.where(failed, FAIL_REWARD, reward)
+        return Outcome(obs, reward, failed | crossed, shaping, critical, crossed)
 
 
 def make_sensor(observation: str, arena) -> HeightScan | Lidar:

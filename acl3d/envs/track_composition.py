@@ -60,8 +60,10 @@ class TrackComposition:
 
     def build_rules(self, arena: TrackArena) -> TrackRules:
         if self.observation == "height_scan":
-            return TrackRules(arena.bound, HeightScan(arena))
-        return TrackRules(arena.bound, HeightLineLidar(arena, "down"))
+            sensor = HeightScan(arena)
+        else:
+            sensor = HeightLineLidar(arena, "down")
+        return TrackRules(arena.bound, sensor, success_return=self.profile.success_return)
 
     def signature(self) -> str:
         """What a saved state must match beyond the body and model sizes (the sensor, if not

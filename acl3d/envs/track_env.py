@@ -152,9 +152,7 @@ class TrackEnv(gym.Env):
         self.observation_space = gym.spaces.Box(
             -np.inf, np.inf, shape=(self.rules.obs_size,), dtype=np.float32
         )
-        self._caps = [self.model.actuator_forcerange]
         self._task_vector = self.task_space.to_vector({})
-        self._success_return = composition.profile.success_return
 
         self.render_mode = render_mode
         self._render_args = {**render_args, "camera": camera or self.arena.camera}
@@ -361,15 +359,10 @@ class TrackEnv(gym.Env):
         (`TrackRules.servo`), after their `before_physics` (Parkour: dead bodies play zeros) and the
         arena's forces (Parkour: grasps released, water)."""
         played = self.rules.before_physics(physics, action[None], self.rows)
-        self.rules.servo(played, self._caps, physics.controls)
-
-    def successes(self, rows) -> np.ndarray:
-        """(N,) success flags of the episodes in `rows` (this env's or a batch's): a return
-        above the curriculum profile's success_return (3D Terrain: crossing the line)."""
-        return rows.episode_return > self._success_return
+        self.rules.servo(played, physics)
 
     def _info(self, unstable: bool) -> dict:
-        info = {"success": bool(self.successes(self.rows)[0])}
+        info = {"success": bool(self.rows.success[0])}
         if unstable:
             info["unstable"] = True
         return info

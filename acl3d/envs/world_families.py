@@ -1,7 +1,7 @@
 """What each env family brings to the many-world simulation (`acl3d.envs.many_worlds`).
 
-A family is its compiled single env (the template: model, arena, generator, numpy rules), the
-fields its worlds change (`WorldFields`), its rules on torch, and how resetting worlds get their
+A family is its compiled single env (the template: model, arena, generator, rules), the
+fields its worlds change (`WorldFields`), the same rules on torch, and how resetting worlds get their
 terrain: the heights its terrain sensor reads and the heightfield rows the physics collides
 with. `ManyWorlds` does the rest (stepping, episode statistics, resets, curriculum, checkpoints)
 the same way for every family.
@@ -16,16 +16,18 @@ import numpy as np
 import torch
 
 from acl3d.envs.arena import INIT_PUSH
+from acl3d.envs.array_ops import TorchOps
+from acl3d.envs.height_scan import HeightScan
+from acl3d.envs.lidar import HeightLineLidar
 from acl3d.envs.parkour_arena import GROUND_RANGE
 from acl3d.envs.parkour_env import ParkourEnv
 from acl3d.envs.tensor_parkour_rules import TensorParkourRules
 from acl3d.envs.tensor_parkour_terrain import TensorParkourTerrain
 from acl3d.envs.tensor_terrain import TensorStumpTracks
 from acl3d.envs.tensor_terrain3d import TensorTerrain3D
-from acl3d.envs.tensor_terrain3d_rules import TensorTerrain3DRules
-from acl3d.envs.tensor_track_rules import TensorTrackRules
 from acl3d.envs.terrain3d_env import Terrain3DEnv
 from acl3d.envs.track_env import TrackEnv
+from acl3d.envs.track_rules import TrackRules
 from acl3d.sim.worlds import WorldFields
 from acl3d.terrain.parkour import BUILDABLE as PARKOUR_BUILDABLE
 from acl3d.terrain.terrain3d import buildable_range
@@ -43,7 +45,7 @@ class WorldFamily(ABC):
     """
 
     template: TrackEnv
-    rules: TensorTrackRules
+    rules: TrackRules
     fields: WorldFields = TERRAIN
 
     def __init__(self, device: torch.device):
@@ -101,7 +103,8 @@ class TrackWorlds(WorldFamily):
     def __init__(self, device: torch.device, dtype: torch.dtype, **env_kwargs):
         super().__init__(device)
         self.template = env = TrackEnv(**env_kwargs)
-        self.rules = TensorTrackRules(env.rules, device, dtype)
+        _check_sensor(env, HeightLineLidar, "lidar")
+        self.rules = env.rules.on(TorchOps(device, dtype))
         self.stumps = TensorStumpTracks(
             env.arena.grid, tuple(env.task_space.names), env.arena.start_pad, device
         )
@@ -130,7 +133,8 @@ class Terrain3DWorlds(WorldFamily):
     def __init__(self, device: torch.device, dtype: torch.dtype, **env_kwargs):
         super().__init__(device)
         self.template = env = Terrain3DEnv(**env_kwargs)
-        self.rules = TensorTerrain3DRules(env.rules, device, dtype)
+        _check_sensor(env, HeightScan, "height_scan")
+        self.rules = env.rules.on(TorchOps(device, dtype))
         names = tuple(env.task_space.names)
         self.fields3d = TensorTerrain3D(env.arena.generator, names, device)
         self._buildable = self._buildable_columns({n: buildable_range(n) for n in names})
@@ -166,7 +170,7 @@ class ParkourWorlds(WorldFamily):
                 "creepers; swinging ones run on the CPU batched env)"
             )
         self.template = env = ParkourEnv(**env_kwargs)
-        self.rules = TensorParkourRules(env.rules, device, dtype)
+        self.rules = TensorParkourRules(env.rules, TorchOps(device, dtype))
         climbing = env.arena.climbing
         self.fields = WorldFields(
             ("terrain", "ceiling"), ("terrain", "ceiling"), True, climbing is not None
@@ -199,6 +203,15 @@ class ParkourWorlds(WorldFamily):
         lo, hi = GROUND_RANGE
         ground = (self.rules.record(records, "ground") - lo) / (hi - lo)
         return records, ground[:, None, :].expand(-1, 2, -1)
+
+
+def _check_sensor(env: TrackEnv, sensor: type, observation: str) -> None:
+    """The family's worlds read their terrain rows with one sensor (the one its terrain fills)."""
+    if not isinstance(env.rules.lidar, sensor):
+        raise ValueError(
+            f"observation={env.composition.observation!r}; {env.composition.track}'s many worlds read "
+            f"observation={observation!r} only"
+        )
 
 
 # the family of each registered single env (its entry point)

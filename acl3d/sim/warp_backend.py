@@ -162,6 +162,9 @@ class WarpSimulation:
             raise ValueError("force caps are not per-world fields of this simulation")
         return self._caps
 
+    def set_force_caps(self, index: torch.Tensor, ranges: torch.Tensor) -> None:
+        self.force_caps()[:, index] = ranges
+
     def terrain(self, hfield: str) -> torch.Tensor:
         return self._terrain[hfield]
 

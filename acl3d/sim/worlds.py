@@ -70,6 +70,11 @@ class Simulation(Protocol):
         """Live (N, nu, 2) per-world actuator force ranges (declared with `force_caps`)."""
         ...
 
+    def set_force_caps(self, index: torch.Tensor, ranges: torch.Tensor) -> None:
+        """Actuators `index` of world i get the force ranges `ranges[i]` ((N, len(index), 2)),
+        as the CPU backends do (`acl3d.envs.physics`)."""
+        ...
+
     def terrain(self, hfield: str) -> torch.Tensor:
         """Live (N, nrow, ncol) per-world elevation data (0..1) of a declared terrain heightfield."""
         ...

@@ -1,0 +1,197 @@
+"""The array library the rules and terrain sensors run on: numpy for the CPU envs, torch for the
+many-world simulation.
+
+Both are written once against an `ArrayOps`: `ops.xp` is the library itself (numpy or torch) for
+the functions both spell and compute alike (`where`, `abs`, `sign`, `floor`, `hypot`,
+`zeros_like`, `concatenate(..., axis=)`, and array methods such as `.sum(axis=)`, `.any(axis=)`,
+`.reshape`), and `ArrayOps` methods cover the rest:
+
+* `atan2`: numpy's vector `arctan2` differs from the C library's `atan2` by one ulp on about 7%
+  of inputs on a CPU with AVX-512 (2026-11-26, numpy 2.4), so the CPU path computes it per
+  element with `math.atan2`: the bits of a run then do not depend on the host's instruction set.
+* `clip`, `to_int`, `to_float`: spelled differently (`np.minimum` / `Tensor.clamp`, ...).
+* `running_max` (`np.maximum.accumulate` / `torch.cummax`), `count_below` (a row-wise
+  `searchsorted`, which numpy has for one row only) and `gather`.
+* where arrays live and in which precision (`asarray`, `index`, `full`).
+
+Why not the Array API standard through `array-api-compat`: its torch namespace wraps `minimum`,
+`maximum`, `where` and others to promote Python scalars, which made the tracks' rules on torch
+~20% slower per step (2026-11-26, `scripts/bench_rules.py`), and a few of its numpy functions
+(`sum`, `any`, `reshape`, `astype`) cost twice numpy's own on the single env's 1-row arrays.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+
+class ArrayOps(ABC):
+    """One array library, device and float precision (see the module docstring)."""
+
+    xp = None  # the library: numpy or torch
+
+    @abstractmethod
+    def asarray(self, values):
+        """Floats in this library's precision, on its device."""
+
+    @abstractmethod
+    def index(self, ids):
+        """Integer indices on this library's device (a contiguous run may stay a slice)."""
+
+    @abstractmethod
+    def full(self, shape, value):
+        """A float array of `shape` filled with `value`."""
+
+    @abstractmethod
+    def atan2(self, y, x):
+        """Element-wise atan2(y, x)."""
+
+    @abstractmethod
+    def clip(self, a, low=None, high=None):
+        """`a` limited to [low, high] (either bound may be None)."""
+
+    @abstractmethod
+    def to_int(self, a):
+        """int64 of `a`, truncated toward zero."""
+
+    @abstractmethod
+    def to_float(self, a):
+        """`a` (flags or numbers) as floats of this precision."""
+
+    @abstractmethod
+    def running_max(self, a):
+        """Cumulative maximum along the last axis."""
+
+    @abstractmethod
+    def count_below(self, rows, values):
+        """(N, V) integers: how many entries of each nondecreasing row of `rows` (N, W) are below
+        each of the increasing `values` (V,) (a row-wise `searchsorted`)."""
+
+    @abstractmethod
+    def gather(self, a, index):
+        """a[i, index[i, j]] for 2-D `a` and `index`."""
+
+    def quiet(self):
+        """A context in which divisions by zero give inf or nan silently (torch's default)."""
+        return contextlib.nullcontext()
+
+
+class NumpyOps(ArrayOps):
+    """float64 numpy arrays: the CPU envs (bit-identical whatever the batch size)."""
+
+    xp = np
+
+    def __init__(self):
+        self._rows: dict[int, np.ndarray] = {}
+
+    def _row_index(self, n: int) -> np.ndarray:
+        if n not in self._rows:
+            self._rows[n] = np.arange(n)[:, None]
+        return self._rows[n]
+
+    def asarray(self, values):
+        return np.asarray(values, dtype=np.float64)
+
+    def index(self, ids):
+        """`ids` as a slice where they are a contiguous ascending run (indexing then gives a
+        view, not a gathered copy: the same arithmetic, cheaper numpy calls), else as is."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+            return slice(int(ids[0]), int(ids[0]) + len(ids))
+        return ids
+
+    def full(self, shape, value):
+        return np.full(shape, value, dtype=np.float64)
+
+    def atan2(self, y, x):
+        return np.array(list(map(math.atan2, y.tolist(), x.tolist())))
+
+    def clip(self, a, low=None, high=None):
+        """`np.minimum` / `np.maximum`: `np.clip` costs 5x more on small arrays."""
+        if low is not None:
+            a = np.maximum(a, low)
+        return a if high is None else np.minimum(a, high)
+
+    def to_int(self, a):
+        return a.astype(np.int64)
+
+    def to_float(self, a):
+        return a.astype(np.float64)
+
+    def running_max(self, a):
+        return np.maximum.accumulate(a, axis=-1)
+
+    def count_below(self, rows, values):
+        """One `searchsorted` for one row; for N rows, each entry's count of values it reaches,
+        tallied per row (`bincount`) and summed up: 3x cheaper than comparing all pairs."""
+        n, v = len(rows), len(values)
+        if n == 1:
+            return np.searchsorted(rows[0], values)[None]
+        reached = np.searchsorted(values, rows, side="right") + self._row_index(n) * (v + 1)
+        tally = np.bincount(reached.ravel(), minlength=n * (v + 1)).reshape(n, v + 1)
+        return tally.cumsum(axis=1)[:, :-1]
+
+    def gather(self, a, index):
+        """Indexing the flat array: half the time of `a[rows, index]` on 64 rows, a quarter of
+        `take_along_axis`'s on one."""
+        n, width = a.shape
+        if n == 1:
+            return a[0, index[0]][None]
+        return a.reshape(-1)[index + self._row_index(n) * width]
+
+    def quiet(self):
+        return np.errstate(divide="ignore", invalid="ignore")
+
+
+NUMPY = NumpyOps()
+
+
+def index_ids(index) -> np.ndarray:
+    """The ids of an index `NumpyOps.index` made (a slice, or ids as they were)."""
+    if isinstance(index, slice):
+        return np.arange(index.start, index.stop)
+    return np.asarray(index)
+
+
+class TorchOps(ArrayOps):
+    """torch tensors on `device` in `dtype`: the many-world simulation (imports torch)."""
+
+    def __init__(self, device, dtype):
+        import torch
+
+        self.xp = torch
+        self.device, self.dtype = torch.device(device), dtype
+
+    def asarray(self, values):
+        return self.xp.as_tensor(np.asarray(values, dtype=np.float64)).to(self.device, self.dtype)
+
+    def index(self, ids):
+        return self.xp.as_tensor(np.asarray(ids, dtype=np.int64), device=self.device)
+
+    def full(self, shape, value):
+        return self.xp.full(shape, value, device=self.device, dtype=self.dtype)
+
+    def atan2(self, y, x):
+        return self.xp.atan2(y, x)
+
+    def clip(self, a, low=None, high=None):
+        return a.clamp(low, high)
+
+    def to_int(self, a):
+        return a.long()
+
+    def to_float(self, a):
+        return a.to(self.dtype)
+
+    def running_max(self, a):
+        return self.xp.cummax(a, dim=-1).values
+
+    def count_below(self, rows, values):
+        return self.xp.searchsorted(rows, values.expand(len(rows), -1).contiguous())
+
+    def gather(self, a, index):
+        return a.gather(1, index)
