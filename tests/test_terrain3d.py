@@ -14,7 +14,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import acl3d  # noqa: F401  (registers the ids)
 from acl3d.envs.env_state import get_env_state, set_env_state
 from acl3d.envs.height_scan import FORWARD, LATERAL
-from acl3d.envs.terrain3d_rules import FAIL_REWARD
+from acl3d.envs.track_rules import FAIL_REWARD
 from acl3d.terrain import terrain3d_test_sets
 from acl3d.terrain.terrain3d import HEIGHT_RANGE, Terrain3DGenerator, terrain3d_task_space
 from tests.gl_support import require_offscreen_gl

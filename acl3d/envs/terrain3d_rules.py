@@ -21,14 +21,7 @@ from acl3d.bodies.base import BoundBody
 from acl3d.envs.array_ops import ArrayOps
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import Lidar
-from acl3d.envs.track_rules import (
-    ANGLE_PENALTY,
-    FAIL_REWARD,
-    Outcome,
-    TrackRules,
-    _sensor_on,
-    torque_use,
-)
+from acl3d.envs.track_rules import ANGLE_PENALTY, TrackRules, _sensor_on
 
 PROGRESS_GAIN = 15.0  # reward per metre along x (the course is ~22 m from spawn to finish)
 HEADING_PENALTY = 5.0  # per radian of yaw away from +x
@@ -71,19 +64,12 @@ class Terrain3DRules(TrackRules):
             s = s - ANGLE_PENALTY * xp.abs(pitch)
         return s
 
-    def outcome(self, physics, actions, heights, prev_shaping) -> Outcome:
+    def ending(self, physics, x, obs, critical) -> tuple:
         """Failure (critical contact, x < 0, |y| past the half width) wins over crossing."""
-        xp = self.ops.xp
-        x, obs = self.observe(physics, heights)
-        shaping = self.potential(physics, x, obs)
-        cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
-        reward = shaping - prev_shaping - cost
-        critical = self.critical(physics)
         y = self._pose(physics, obs)[0]
-        failed = critical | (x < 0.0) | (xp.abs(y) > self.half_width)
+        failed = critical | (x < 0.0) | (self.ops.xp.abs(y) > self.half_width)
         crossed = (x > self.end_x) & ~failed
-        reward = xp.where(failed, FAIL_REWARD, reward)
-        return Outcome(obs, reward, failed | crossed, shaping, critical, crossed)
+        return failed, failed | crossed, crossed
 
 
 def make_sensor(observation: str, arena) -> HeightScan | Lidar:

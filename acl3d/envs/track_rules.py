@@ -277,15 +277,21 @@ class TrackRules:
 
     def outcome(self, physics, actions, heights, prev_shaping) -> Outcome:
         """The step's `Outcome` after physics, given the last step's shaping (N,)."""
-        xp = self.ops.xp
         x, obs = self.observe(physics, heights)
         shaping = self.potential(physics, x, obs)
         cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
         reward = shaping - prev_shaping - cost
         critical = self.critical(physics)
-        fail = critical | (x < 0.0)
-        reward = xp.where(fail, FAIL_REWARD, reward)
-        return Outcome(obs, reward, fail | (x > self.end_x), shaping, critical)
+        failed, terminated, crossed = self.ending(physics, x, obs, critical)
+        reward = self.ops.xp.where(failed, FAIL_REWARD, reward)
+        return Outcome(obs, reward, terminated, shaping, critical, crossed)
+
+    def ending(self, physics, x, obs, critical) -> tuple:
+        """(failed, terminated, crossed) flags (N,): on a track, a critical contact or going
+        behind the start fails, crossing the end line ends the episode; crossed None (success is
+        judged by the return)."""
+        failed = critical | (x < 0.0)
+        return failed, failed | (x > self.end_x), None
 
     def success(self, returns, outcome: Outcome):
         """(N,) success flags of episodes whose return is now `returns`: past the curriculum
