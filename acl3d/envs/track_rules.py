@@ -313,9 +313,10 @@ class TrackRules:
     def begin_episode(self, rows: EpisodeRows) -> None:
         """Clear the episode rules of `rows` before the body is placed (the tracks' have none)."""
 
-    def before_physics(self, physics, actions: np.ndarray, rows: EpisodeRows) -> np.ndarray:
+    def before_physics(self, physics, actions, episodes):
         """The arenas' forces for the coming step; returns the (N, action) actions the bodies
-        play (on a track: the ones given, and no forces)."""
+        play (on a track: the ones given, and no forces). `episodes`: the running episodes, the
+        CPU envs' `EpisodeRows` or the many worlds' rows of heights (Parkour's records)."""
         return actions
 
     def observe_rows(self, physics, rows: EpisodeRows):
