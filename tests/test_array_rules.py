@@ -116,3 +116,23 @@ def test_the_operations_that_differ_agree_between_libraries(n):
         TORCH64.atan2(torch.from_numpy(y), torch.from_numpy(x)).numpy(), np.arctan2(y, x),
         rtol=1e-15, atol=0,
     )  # fmt: skip
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_sparse_work_gives_the_same_minima_on_both_libraries(n):
+    """numpy computes only the pairs a mask keeps; torch computes every pair and masks: the
+    per-row minima agree."""
+    rng = np.random.default_rng(n)
+    mask = rng.random((n, 5)) < 0.4
+    values = rng.normal(size=(n, 5, 2))  # a value per (row, col) pair and per ray
+
+    def minima(ops, mask, values):
+        rows, cols = ops.pairs(mask)
+        picked = ops.xp.where(mask[rows, cols][None], values[rows, cols].T, np.inf)
+        return ops.scatter_min(picked, rows, n)
+
+    expected = np.where(mask[..., None], values, np.inf).min(axis=1)
+    np.testing.assert_array_equal(minima(NUMPY, mask, values), expected)
+    got = minima(TORCH64, torch.from_numpy(mask), torch.from_numpy(values))
+    np.testing.assert_array_equal(got.numpy(), expected)
+    assert NUMPY.needed(mask) == bool(mask.any()) and TORCH64.needed(torch.from_numpy(mask))

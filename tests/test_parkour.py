@@ -8,7 +8,8 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import acl3d  # noqa: F401  (registers the environments)
-from acl3d.envs.parkour_rules import CREEPER_FLAG, SURVIVAL_STEPS, WATER_FLAG
+from acl3d.envs.parkour_lidar import CREEPER_FLAG, WATER_FLAG
+from acl3d.envs.parkour_rules import SURVIVAL_STEPS
 from acl3d.envs.profiles import PARKOUR
 from acl3d.envs.water import Water
 from acl3d.teachers import test_sets

@@ -12,6 +12,9 @@ the functions both spell and compute alike (`where`, `abs`, `sign`, `floor`, `hy
 * `clip`, `to_int`, `to_float`: spelled differently (`np.minimum` / `Tensor.clamp`, ...).
 * `running_max` (`np.maximum.accumulate` / `torch.cummax`), `count_below` (a row-wise
   `searchsorted`, which numpy has for one row only) and `gather`.
+* sparse work: `needed(mask)` and `pairs(mask)` let numpy skip or compact what no row needs
+  (a host check, cheap on the CPU), where torch keeps every row and masks (no host sync on a
+  GPU); `scatter_min` reduces per-pair values back to rows.
 * where arrays live and in which precision (`asarray`, `index`, `full`).
 
 Why not the Array API standard through `array-api-compat`: its torch namespace wraps `minimum`,
@@ -74,6 +77,20 @@ class ArrayOps(ABC):
     @abstractmethod
     def gather(self, a, index):
         """a[i, index[i, j]] for 2-D `a` and `index`."""
+
+    @abstractmethod
+    def needed(self, mask) -> bool:
+        """False only if no entry of `mask` holds and this library can tell cheaply."""
+
+    @abstractmethod
+    def pairs(self, mask):
+        """(rows, cols) index arrays of the entries of the 2-D `mask` to compute: at least
+        those that hold (numpy: exactly those)."""
+
+    @abstractmethod
+    def scatter_min(self, values, rows, n: int):
+        """(n, R): the minimum per row of `values` (R, M) whose column m belongs to row
+        `rows[m]` (inf where none)."""
 
     def quiet(self):
         """A context in which divisions by zero give inf or nan silently (torch's default)."""
@@ -143,6 +160,17 @@ class NumpyOps(ArrayOps):
             return a[0, index[0]][None]
         return a.reshape(-1)[index + self._row_index(n) * width]
 
+    def needed(self, mask) -> bool:
+        return bool(mask.any())
+
+    def pairs(self, mask):
+        return np.nonzero(mask)
+
+    def scatter_min(self, values, rows, n: int):
+        out = np.full((len(values), n), np.inf)
+        np.minimum.at(out, (slice(None), rows), values)
+        return out.T
+
     def quiet(self):
         return np.errstate(divide="ignore", invalid="ignore")
 
@@ -195,3 +223,17 @@ class TorchOps(ArrayOps):
 
     def gather(self, a, index):
         return a.gather(1, index)
+
+    def needed(self, mask) -> bool:
+        return True  # asking would wait for the device
+
+    def pairs(self, mask):
+        n, m = mask.shape
+        rows = self.xp.arange(n, device=self.device)[:, None].expand(n, m).reshape(-1)
+        cols = self.xp.arange(m, device=self.device).repeat(n)
+        return rows, cols
+
+    def scatter_min(self, values, rows, n: int):
+        out = self.full((n, values.shape[0]), float("inf"))
+        src = values.T
+        return out.scatter_reduce_(0, rows[:, None].expand_as(src), src, "amin")

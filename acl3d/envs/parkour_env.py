@@ -21,7 +21,8 @@ from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.climbing import Climbing
 from acl3d.envs.lidar import LIDAR_TYPES
 from acl3d.envs.parkour_arena import ParkourArena
-from acl3d.envs.parkour_rules import DEFAULT_LIDARS, ParkourLidar, ParkourRules
+from acl3d.envs.parkour_lidar import ParkourLidar
+from acl3d.envs.parkour_rules import DEFAULT_LIDARS, ParkourRules
 from acl3d.envs.profiles import PARKOUR
 from acl3d.envs.track_env import TrackEnv
 from acl3d.envs.water import PUSH_CLIP, Water

@@ -1,13 +1,12 @@
 """Parkour's rules on torch tensors: water, survival, grasps and the typed lidar of N worlds.
 
 The arithmetic of `ParkourRules` (survival counters, dead bodies playing zeros, critical contacts
-against anything but the ceiling), `ParkourLidar` (rays on the ground and ceiling lines, the
-creeper boxes and the water plane, with surface flags), `Water.apply` (buoyancy, drag, lift and
-swimming thrust per geom's sagittal rectangle) and `Climbing` (touch, grab, release), for all
-worlds at once with no per-world Python and no host round trip. The tracks' part (head, motor
-state, shaping, servos) is `TrackRules`' own arithmetic on torch; the rest reads its constants
-from the compiled numpy rules; tests/test_many_worlds_parkour.py checks both agree on the same
-physics.
+against anything but the ceiling), `Water.apply` (buoyancy, drag, lift and swimming thrust per
+geom's sagittal rectangle) and `Climbing` (touch, grab, release), for all worlds at once with no
+per-world Python and no host round trip. The tracks' part (head, motor state, shaping, servos)
+is `TrackRules`' own arithmetic on torch, and the typed lidar `ParkourLidar`'s own `cast` on
+torch (on the records' lines and boxes); the rest reads its constants from the compiled numpy
+rules; tests/test_many_worlds_parkour.py checks both agree on the same physics.
 
 Each world's episode lives in one float row, its *record* (`ParkourRecord`: ground and ceiling
 lines, water level, creeper boxes, survival counters, grasp flags and anchors, the water forces
@@ -26,12 +25,11 @@ import torch
 from acl3d.envs.array_ops import TorchOps
 from acl3d.envs.climbing import CEILING_MARGIN, TOUCH_MARGIN
 from acl3d.envs.parkour_arena import CEILING_RANGE, CREEPER_HALF_DEPTH
-from acl3d.envs.parkour_rules import CREEPER_FLAG, WATER_FLAG, ParkourLidar, ParkourRules
+from acl3d.envs.parkour_lidar import CreeperBoxes, ParkourLidar
+from acl3d.envs.parkour_rules import ParkourRules
 from acl3d.envs.tensor_water import TensorWater
 from acl3d.envs.track_rules import FAIL_REWARD, Outcome, TrackRules, torque_use
 from acl3d.sim.worlds import Simulation
-
-_BOX_MIN_DIRECTION = 1e-12  # as ParkourLidar: a ray parallel to a box face
 
 
 class ParkourRecord:
@@ -75,96 +73,37 @@ class ParkourRecord:
 
 
 class TensorParkourLidar:
-    """`ParkourLidar` on tensors: reads (N, 2 rays): fractions then surface flags, from the
-    worlds' records (its rows of heights)."""
+    """`ParkourLidar.cast` on the worlds' records (its rows of heights): reads (N, 2 rays),
+    fractions then surface flags."""
 
     reads_height_rows = True
 
     def __init__(self, lidar: ParkourLidar, record: ParkourRecord, ops: TorchOps):
-        self.ops = ops
-        device, dtype = ops.device, ops.dtype
-        f = {"device": device, "dtype": dtype}
-        self.record, self.rays, self.range = record, lidar.nb_rays, lidar.range
+        self.ops, self.record = ops, record
+        self.lidar = lidar.on(ops)
         self.nb_rays = 2 * lidar.nb_rays
-        grid = lidar._grid
-        self.x = torch.as_tensor(grid.x).to(**f)
+        grid = lidar.arena.grid
         self.x_min, self.cell, self.ncol = grid.x_min, grid.cell, grid.ncol
-        self.back, self.ahead = lidar._reach_back, lidar._reach_ahead
-        self.window = torch.as_tensor(lidar._window, device=device)
-        d = torch.as_tensor(lidar.directions).to(**f)
-        self.dx, self.dz = d[:, 0], d[:, 2]
-        self.box_d = torch.where(d.abs() < _BOX_MIN_DIRECTION, _BOX_MIN_DIRECTION, d)
-        self.inv_down = torch.as_tensor(lidar._inv_down).to(**f)
 
     def batch_heights(self, n: int) -> torch.Tensor:
         return self.ops.full((n, self.record.width), 0.0)
 
     def read_batch(self, record: torch.Tensor, origins: torch.Tensor, rotations=None):
-        x0, z0 = origins[:, 0], origins[:, 2]
-        best = self._surface_hits(record, x0, z0).clamp(max=self.range)
-        flags = torch.zeros_like(best)
-        creeper = self._creeper_hits(record, origins)
-        on_creeper = creeper < best
-        best = torch.where(on_creeper, creeper, best)
-        flags = flags.masked_fill(on_creeper, CREEPER_FLAG)
-        height = z0 - self.record(record, "water")[:, 0]
-        above = (height > 0.0)[:, None]  # rays from under water do not see its surface
-        water = torch.where(above, height[:, None] * self.inv_down, torch.inf)
-        on_water = water < best
-        best = torch.where(on_water, water, best)
-        flags = flags.masked_fill(on_water, WATER_FLAG)
-        miss = best >= self.range
-        fractions = torch.where(miss, 1.0, best / self.range)
-        return torch.cat((fractions, flags.masked_fill(miss, 0.0)), dim=1)
-
-    def _surface_hits(self, record, x0, z0) -> torch.Tensor:
-        """(N, rays) distance to the first crossing of the ground or ceiling line in reach."""
-        i0 = ((x0 + self.back - self.x_min) / self.cell).long().clamp(min=0)
-        i1 = (((x0 + self.ahead - self.x_min) / self.cell).long() + 1).clamp(max=self.ncol - 1)
-        cols = i0[:, None] + self.window
-        inside = cols <= i1[:, None]
-        cols = cols.clamp(max=self.ncol - 1)
-        xs = self.x[cols]
-        hits = torch.full((len(x0), self.rays), torch.inf, device=x0.device, dtype=x0.dtype)
-        for name, sign in (("ground", 1.0), ("ceiling", -1.0)):
-            zs = self.record(record, name).gather(1, cols)
-            nearest = torch.where(inside, sign * zs, -torch.inf).amax(dim=1)
-            near = nearest >= sign * z0 - self.range
-            found = self._polyline_hits(xs, zs, x0, z0, inside[:, 1:])
-            hits = torch.minimum(hits, torch.where(near[:, None], found, torch.inf))
-        return hits
-
-    def _polyline_hits(self, xs, zs, x0, z0, segments) -> torch.Tensor:
-        ex, ez = self.cell, (zs[:, 1:] - zs[:, :-1])[:, None, :]
-        rx = (xs[:, :-1] - x0[:, None])[:, None, :]
-        rz = (zs[:, :-1] - z0[:, None])[:, None, :]
-        dx, dz = self.dx[None, :, None], self.dz[None, :, None]
-        denom = dx * ez - dz * ex
-        safe = torch.where(denom == 0.0, 1.0, denom)
-        t = (rx * ez - rz * ex) / safe
-        u = (rx * dz - rz * dx) / safe
-        valid = (denom != 0.0) & (u >= 0.0) & (u <= 1.0) & (t >= 0.0) & segments[:, None, :]
-        return torch.where(valid, t, torch.inf).amin(dim=2)
-
-    def _creeper_hits(self, record, origins) -> torch.Tensor:
-        """(N, rays) distance to the nearest creeper box entered from outside (slab test)."""
-        cx, cz, hx, hz, used = self.record.creepers(record)
-        offsets = (
-            origins[:, 0:1] - cx,
-            origins[:, 1:2] - torch.zeros_like(cx),
-            origins[:, 2:3] - cz,
+        rec = self.record
+        cx, cz, hx, hz, used = rec.creepers(record)
+        half = torch.stack((hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz), -1)
+        boxes = CreeperBoxes(
+            torch.stack((cx, torch.zeros_like(cx), cz), -1),
+            None,  # static creepers stand upright
+            half,
+            half.norm(dim=-1),
+            used,
         )
-        half = (hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz)
-        t_in = t_out = None
-        for k in range(3):
-            d = self.box_d[:, k][None, :, None]  # (1, rays, 1)
-            t1 = (-half[k] - offsets[k])[:, None, :] / d
-            t2 = (half[k] - offsets[k])[:, None, :] / d
-            lo, hi = torch.minimum(t1, t2), torch.maximum(t1, t2)
-            t_in = lo if t_in is None else torch.maximum(t_in, lo)
-            t_out = hi if t_out is None else torch.minimum(t_out, hi)
-        hit = (t_in <= t_out) & (t_in > 0.0) & used[:, None, :]
-        return torch.where(hit, t_in, torch.inf).amin(dim=2)
+        fractions, flags = self.lidar.cast(
+            rec(record, "ground"), rec(record, "ceiling"), rec(record, "water")[:, 0], origins,
+            boxes,
+        )  # fmt: skip
+        return torch.cat((fractions, flags), dim=1)
 
 
 class TensorParkourRules(TrackRules):
