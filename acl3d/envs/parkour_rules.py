@@ -31,6 +31,28 @@ PARKOUR_CRITICAL_WALKERS = ("profile_chimpanzee",)  # the chimpanzee's head is a
 DEFAULT_LIDARS = {"walker": "down", "amphibian": "down", "climber": "up", "swimmer": "full"}
 
 
+def count_survival(xp, kind: str, limit: int, under, below, above, alive):
+    """One step of the survival counters of N bodies (`xp`: numpy or torch): consecutive steps
+    `below` and `above` the water surface, counted while alive; returns (below, above, died):
+    walkers and climbers die after more than `limit` steps under water, swimmers after more
+    than `limit` out of it, amphibians never."""
+    below = xp.where(alive, xp.where(under, below + 1, 0), below)
+    above = xp.where(alive, xp.where(under, 0, above + 1), above)
+    if kind in ("walker", "climber"):
+        died = alive & (below > limit)
+    elif kind == "swimmer":
+        died = alive & (above > limit)
+    else:
+        died = xp.zeros_like(alive)
+    return below, above, died
+
+
+def critical_touch(sensordata, any_contact, ceiling_contact):
+    """(N,) flags: a critical part touches something other than the ceiling (its touch sensor
+    counts more contacts than its ceiling-only one)."""
+    return (sensordata[:, any_contact] > sensordata[:, ceiling_contact]).any(axis=1)
+
+
 class ParkourRules(TrackRules):
     """The tracks' rules + water, survival counters, grasping and the Parkour observation layout,
     for N envs at once like the tracks': each env's survival counters, terrain (ground, ceiling,
@@ -139,16 +161,11 @@ class ParkourRules(TrackRules):
         """Count consecutive steps in/out of water; (N,) flags: the body died this step."""
         under = physics.field("xpos")[:, self.bound.root_id, 2] <= rows.water_level
         rows.under_water[:] = under
-        alive = ~rows.dead
-        below, above = rows.steps_under_water, rows.steps_out_of_water
-        below[:] = np.where(alive, np.where(under, below + 1, 0), below)
-        above[:] = np.where(alive, np.where(under, 0, above + 1), above)
-        if self.kind in ("walker", "climber"):
-            died = alive & (below > self.survival_steps)
-        elif self.kind == "swimmer":
-            died = alive & (above > self.survival_steps)
-        else:
-            died = np.zeros_like(alive)
+        below, above, died = count_survival(
+            np, self.kind, self.survival_steps, under, rows.steps_under_water,
+            rows.steps_out_of_water, ~rows.dead,
+        )  # fmt: skip
+        rows.steps_under_water[:], rows.steps_out_of_water[:] = below, above
         rows.dead |= died
         return died
 
@@ -178,13 +195,6 @@ class ParkourRules(TrackRules):
         rows.under_water[:] = root_z <= rows.water_level
         return super().reset_rows(physics, rows)
 
-    def critical_touch(self, physics) -> np.ndarray:
-        """(N,) flags: a critical part touches something other than the ceiling (it has more
-        contacts than those with the ceiling)."""
-        touching = physics.field("sensordata")
-        more = touching[:, self._critical_any] > touching[:, self._critical_ceiling]
-        return np.logical_or.reduce(more, axis=1)
-
     def outcome_rows(self, physics, actions: np.ndarray, rows) -> Outcome:
         if self.climber:
             climbings = [arena.climbing for arena in rows.arenas]
@@ -197,7 +207,9 @@ class ParkourRules(TrackRules):
         reward = shaping - rows.prev_shaping
         cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
         reward[alive] -= cost[alive]
-        critical = self.critical_touch(physics)
+        critical = critical_touch(
+            physics.field("sensordata"), self._critical_any, self._critical_ceiling
+        )
         fail = critical | (x < 0.0)
         terminated = fail | (x > self.end_x)
         if self.end_on_death:

@@ -26,7 +26,7 @@ from acl3d.envs.array_ops import TorchOps
 from acl3d.envs.climbing import CEILING_MARGIN, TOUCH_MARGIN
 from acl3d.envs.parkour_arena import CEILING_RANGE, CREEPER_HALF_DEPTH
 from acl3d.envs.parkour_lidar import CreeperBoxes, ParkourLidar
-from acl3d.envs.parkour_rules import ParkourRules
+from acl3d.envs.parkour_rules import ParkourRules, count_survival, critical_touch
 from acl3d.envs.tensor_water import TensorWater
 from acl3d.envs.track_rules import FAIL_REWARD, Outcome, TrackRules, torque_use
 from acl3d.sim.worlds import Simulation
@@ -206,14 +206,9 @@ class TensorParkourRules(TrackRules):
         below, above, dead = survival.unbind(1)
         under = sim.field("xpos")[:, self._root, 2] <= self.record(record, "water")[:, 0]
         alive = dead == 0.0
-        below = torch.where(alive, torch.where(under, below + 1, 0.0), below)
-        above = torch.where(alive, torch.where(under, 0.0, above + 1), above)
-        if self.kind in ("walker", "climber"):
-            died = alive & (below > self.survival_steps)
-        elif self.kind == "swimmer":
-            died = alive & (above > self.survival_steps)
-        else:
-            died = torch.zeros_like(alive)
+        below, above, died = count_survival(
+            torch, self.kind, self.survival_steps, under, below, above, alive
+        )
         survival.copy_(torch.stack((below, above, (~alive | died).to(below.dtype)), dim=1))
         return died
 
@@ -239,11 +234,7 @@ class TensorParkourRules(TrackRules):
         return x, obs
 
     def critical(self, sim: Simulation) -> torch.Tensor:
-        """(N,) a critical part touches something other than the ceiling."""
-        if not len(self.critical_any):
-            return torch.zeros(sim.nworld, dtype=torch.bool, device=self.device)
-        touch = sim.field("sensordata")
-        return (touch[:, self.critical_any] > touch[:, self.critical_ceiling]).any(dim=1)
+        return critical_touch(sim.field("sensordata"), self.critical_any, self.critical_ceiling)
 
     def outcome(self, sim: Simulation, actions, heights, prev_shaping) -> Outcome:
         rec = self.record
