@@ -329,3 +329,12 @@ def test_warp_loads_its_kernel_modules_without_a_line_each():
 
     warp, _ = import_warp()
     assert warp.config.log_level >= warp.LOG_WARNING  # 1.19 dropped config.quiet
+
+
+@pytest.mark.parametrize(
+    "name, observation, valid",
+    [("stump-tracks", "height_scan", "'lidar'"), ("terrain3d", "lidar", "'height_scan'")],
+)
+def test_a_sensor_the_worlds_do_not_fill_is_refused_by_name(name, observation, valid):
+    with pytest.raises(ValueError, match=f"observation='{observation}'; valid: {valid}"):
+        many_worlds(name, 2, "cpu", observation=observation)

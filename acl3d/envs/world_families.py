@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 import torch
 
+from acl3d import validation
 from acl3d.envs.arena import INIT_PUSH
 from acl3d.envs.array_ops import TorchOps
 from acl3d.envs.height_scan import HeightScan
@@ -208,9 +209,10 @@ class ParkourWorlds(WorldFamily):
 def _check_sensor(env: TrackEnv, sensor: type, observation: str) -> None:
     """The family's worlds read their terrain rows with one sensor (the one its terrain fills)."""
     if not isinstance(env.rules.lidar, sensor):
-        raise ValueError(
-            f"observation={env.composition.observation!r}; {env.composition.track}'s many worlds read "
-            f"observation={observation!r} only"
+        raise validation.fail(
+            "observation",
+            env.composition.observation,
+            f"{observation!r} on the many-world simulation (another runs on the CPU envs)",
         )
 
 
