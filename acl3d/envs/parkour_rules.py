@@ -90,8 +90,7 @@ class ParkourRules(TrackRules):
         self._critical_ceiling = self._sensor_adr(bound.model, critical, against="ceiling")
         self.end_on_death = end_on_death
         self.survival_steps = survival_steps
-        self._water_geoms = arena.water.geoms  # the same body geoms in every env's model
-        self._water_reach = bound.model.geom_rbound[self._water_geoms]
+        self.water = arena.water  # the same body geoms in every env's model
 
     def extra_obs_size(self) -> int:
         return 2 + self.lidar.nb_rays  # under_water and dead flags, surface flags
@@ -126,19 +125,22 @@ class ParkourRules(TrackRules):
 
     def before_physics(self, physics, actions: np.ndarray, rows: EpisodeRows) -> np.ndarray:
         """Dead bodies play zeros; climbers release the grasps their actions let go (all envs at
-        once); then the water forces of the envs whose body reaches the water (or just left it:
-        their forces are cleared), each on its row."""
+        once); then the water forces of all envs at once, if a body reaches the water (or just
+        left it: its forces are cleared)."""
         if rows.dead.any():
             actions = np.where(rows.dead[:, None], 0.0, actions)
         if self.climber:
             climbings = [arena.climbing for arena in rows.arenas]
             before_steps(climbings, physics.field("eq_active"), actions[:, -self._nb_grasp :])
-        bottoms = physics.field("geom_xpos")[:, self._water_geoms, 2] - self._water_reach
-        wet = [arena.water.wet for arena in rows.arenas]
-        # per wet env, in plain floats: the same forces on (N, geoms, edges) numpy arrays took
-        # 300 us per call for one env against 32 us (docs/benchmarks.md)
-        for i in np.flatnonzero((bottoms.min(axis=1) < rows.water_level) | wet):
-            rows.arenas[i].water.apply(physics.row_data(i))
+        water = self.water
+        bottoms = physics.field("geom_xpos")[:, water.geoms, 2] - water.reach
+        reached = bottoms.min(axis=1) < rows.water_level
+        wet = np.fromiter((arena.water.wet for arena in rows.arenas), bool, len(reached))
+        if (reached | wet).any():  # all envs at once; a dry one gets zero forces
+            forces, _ = water.forces(physics, rows.water_level)
+            physics.field("xfrc_applied")[:, water.body_ids, 0::2] = forces
+            for arena, flag in zip(rows.arenas, reached.tolist()):
+                arena.water.wet = flag
         return actions
 
     def episode_state(self, rows: EpisodeRows) -> dict:

@@ -1,12 +1,12 @@
-"""Parkour's rules on torch tensors: water, survival, grasps and the typed lidar of N worlds.
+"""Parkour's rules on torch tensors: the N worlds of the many-world simulation.
 
-The arithmetic of `ParkourRules` (survival counters, dead bodies playing zeros, critical contacts
-against anything but the ceiling), `Water.apply` (buoyancy, drag, lift and swimming thrust per
-geom's sagittal rectangle) and `Climbing` (touch, grab, release), for all worlds at once with no
-per-world Python and no host round trip. The tracks' part (head, motor state, shaping, servos)
-is `TrackRules`' own arithmetic on torch, and the typed lidar `ParkourLidar`'s own `cast` on
-torch (on the records' lines and boxes); the rest reads its constants from the compiled numpy
-rules; tests/test_many_worlds_parkour.py checks both agree on the same physics.
+The rules shared with the CPU envs run here on torch: the tracks' part (`TrackRules`: head, motor
+state, shaping, servos), the typed lidar (`ParkourLidar.cast`, on the records' lines and boxes),
+the water forces (`Water.forces`), the survival counters and critical contacts
+(`count_survival`, `critical_touch`). What is this module's own: reading them from each world's
+record, dead bodies playing zeros, and the climbers' grasps (`Climbing`'s touch, grab and
+release, for all worlds at once), with no per-world Python and no host round trip;
+tests/test_many_worlds_parkour.py checks it against the CPU env on the same physics.
 
 Each world's episode lives in one float row, its *record* (`ParkourRecord`: ground and ceiling
 lines, water level, creeper boxes, survival counters, grasp flags and anchors, the water forces
@@ -27,7 +27,6 @@ from acl3d.envs.climbing import CEILING_MARGIN, TOUCH_MARGIN
 from acl3d.envs.parkour_arena import CEILING_RANGE, CREEPER_HALF_DEPTH
 from acl3d.envs.parkour_lidar import CreeperBoxes, ParkourLidar
 from acl3d.envs.parkour_rules import ParkourRules, count_survival, critical_touch
-from acl3d.envs.tensor_water import TensorWater
 from acl3d.envs.track_rules import FAIL_REWARD, Outcome, TrackRules, torque_use
 from acl3d.sim.worlds import Simulation
 
@@ -119,7 +118,7 @@ class TensorParkourRules(TrackRules):
         device, dtype = ops.device, ops.dtype
         self.climbing = arena.climbing
         hands = self.climbing.nb_sensors if self.climbing else 0
-        self.water = TensorWater(arena.water, device, dtype)
+        self.water = arena.water.on(ops)
         self.record = ParkourRecord(
             arena.grid.ncol, len(arena.creeper_geoms), hands, len(self.water.body_ids)
         )
@@ -252,6 +251,6 @@ class TensorParkourRules(TrackRules):
         if self.end_on_death:
             terminated = terminated | died
         level = rec(heights, "water")[:, 0]
-        rec(heights, "forces").copy_(self.water.forces(sim, level).flatten(1))
+        rec(heights, "forces").copy_(self.water.forces(sim, level)[0].flatten(1))
         reward = torch.where(fail, FAIL_REWARD, reward)
         return Outcome(obs, reward, terminated, shaping, critical)

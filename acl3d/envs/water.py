@@ -16,16 +16,19 @@ original formulas apply edge by edge with densities in the original's units (mas
             thrust; with these constants it is nearly always at the clip).
 
 Partly submerged geoms get their drag, lift and push scaled by f (the original clips the polygon
-against the water; a linear fraction is the 3D shortcut). Nothing is computed while no geom
-reaches the water, so walkers on dry ground pay almost nothing.
+against the water; a linear fraction is the 3D shortcut). On the CPU nothing is computed while
+no geom of any env reaches the water, so walkers on dry ground pay almost nothing.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 
 import mujoco
 import numpy as np
+
+from acl3d.envs.array_ops import NUMPY, ArrayOps
 
 WATER_DENSITY = 1.0  # kg per m^2 of 2D silhouette, the original's units
 DRAG_MOD, LIFT_MOD, PUSH_MOD = 0.25, 0.25, 0.05
@@ -71,15 +74,21 @@ def silhouette(model: mujoco.MjModel, geom: int) -> tuple[int, int, float]:
 
 
 class Water:
-    """Water forces on one bound body; `level` (world z of the surface) is set per episode."""
+    """Water forces on one bound body, for N envs or worlds at once; `level` (world z of the
+    surface) is a single env's, set per episode.
+
+    Written once over `ArrayOps` (`forces`): numpy in the CPU envs, torch in the many-world
+    simulation (`on(ops)`). Each geom's rectangle is worked on as (N, geoms, edges) arrays with
+    masks in place of the per-geom and per-edge branches; geom results are summed per body.
+    """
 
     def __init__(
         self, model: mujoco.MjModel, geom_ids, density: float = WATER_DENSITY, push_clip=PUSH_CLIP
     ):
-        self.model = model
         self.density = density
         self.push_clip = push_clip
         self.level = -np.inf
+        self.ops: ArrayOps = NUMPY
         geoms = np.asarray(
             [g for g in geom_ids if model.geom_contype[g] or model.geom_conaffinity[g]], dtype=int
         )
@@ -91,152 +100,139 @@ class Water:
         half = model.geom_aabb[geoms, 3:]
         self._e1 = half[np.arange(len(geoms)), self._k1]
         self._e2 = half[np.arange(len(geoms)), self._k2]
-        self._rbound = model.geom_rbound[geoms]
+        self.reach = model.geom_rbound[geoms]
+        self._centre = model.geom_aabb[geoms, :3]  # the bounding box centre in the geom frame
         self.bodies = model.geom_bodyid[geoms]
         self.body_ids = np.unique(self.bodies)
         self._gravity = -float(model.opt.gravity[2])
         self._wet = False
-        self._tree_roots = model.body_rootid[self.bodies]
-        push = self._push_tables(model)
-        # one tuple of plain Python numbers per geom: what apply() needs, read once here
-        self._rows = [
-            (
-                tuple(float(v) for v in model.geom_aabb[g, :3]),
-                int(self.bodies[i]),
-                int(self._k1[i]),
-                int(self._k2[i]),
-                float(self._e1[i]),
-                float(self._e2[i]),
-                float(self.area[i]),
-                push.get(i),
-            )
-            for i, g in enumerate(geoms)
-        ]
+        self._roots = model.body_rootid[self.bodies]
+        # geom -> body sums as products with 0/1 matrices (a sum per body, in geom order)
+        self._to_body = (self.bodies[:, None] == self.body_ids[None, :]).astype(float)
+        self._each = np.arange(len(geoms))
+        # the rectangle's four edges: which in-plane axis is the normal (+/-), half extents
+        self._edge_sign = np.array([1.0, -1.0, 1.0, -1.0])
+        self._offset = np.stack((self._e1, self._e1, self._e2, self._e2), axis=1)  # (G, 4)
+        self._length = 2 * np.stack((self._e2, self._e2, self._e1, self._e1), axis=1)
+        self._push_tables(model)
 
-    def _push_tables(self, model: mujoco.MjModel) -> dict[int, tuple]:
-        """Geom index -> the actuated hinge moving its body: (joint, dof, qpos address, unlimited,
-        low, high, body inertia)."""
+    def _push_tables(self, model: mujoco.MjModel) -> None:
+        """The geoms whose body an actuated hinge moves, and that hinge: joint, dof, qpos
+        address, unlimited, range, the body's largest inertia."""
         actuated = {int(model.actuator_trnid[a, 0]) for a in range(model.nu)}
-        tables = {}
+        pushed, table = [], []
         for i, b in enumerate(self.bodies):
             for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
                 if j in actuated and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE:
-                    tables[i] = (
-                        int(j),
-                        int(model.jnt_dofadr[j]),
-                        int(model.jnt_qposadr[j]),
-                        not bool(model.jnt_limited[j]),
-                        float(model.jnt_range[j, 0]),
-                        float(model.jnt_range[j, 1]),
-                        float(model.body_inertia[b].max()),
-                    )
-        return tables
+                    pushed.append(i)
+                    table.append((j, model.jnt_dofadr[j], model.jnt_qposadr[j],
+                                  not model.jnt_limited[j], *model.jnt_range[j],
+                                  model.body_inertia[b].max()))  # fmt: skip
+        self._pushed = np.array(pushed, dtype=int)
+        self._select = (self._pushed[:, None] == np.arange(len(self.geoms))).astype(float)
+        columns = list(zip(*table)) if table else [()] * 7
+        self._joint, self._dof, self._qadr = (np.array(c, dtype=int) for c in columns[:3])
+        self._free = np.array(columns[3], dtype=bool)
+        self._low, self._high, self._inertia = (np.array(c, dtype=float) for c in columns[4:])
+
+    def on(self, ops: ArrayOps) -> Water:
+        """These forces computed on arrays of `ops` (the many-world simulation's tensors)."""
+        out = copy.copy(self)
+        out.ops = ops
+        for name in ("area", "_e1", "_e2", "_centre", "_to_body", "_edge_sign", "_offset",
+                     "_length", "_select", "_low", "_high", "_inertia"):  # fmt: skip
+            setattr(out, name, ops.asarray(getattr(self, name)))
+        for name in ("geoms", "bodies", "_roots", "_k1", "_k2", "_each", "_pushed", "_joint",
+                     "_dof", "_qadr", "body_ids"):  # fmt: skip
+            setattr(out, name, ops.index(getattr(self, name)))
+        out._free = ops.index(self._free.astype(int)) > 0
+        return out
+
+    def forces(self, physics, level):
+        """(N, bodies, 3) forces (fx, fz, torque y about each body's centre of mass) of the
+        water at `level` (N,) on the bodies `body_ids` of N envs, and (N,) submerged areas."""
+        ops, xp = self.ops, self.ops.xp
+        xmat = physics.field("geom_xmat")[:, self.geoms]
+        n, g, each = xmat.shape[0], xmat.shape[1], self._each
+        r = xmat.reshape(n, g, 9)
+        p = physics.field("geom_xpos")[:, self.geoms] + xp.einsum(
+            "ngij,gj->ngi", r.reshape(n, g, 3, 3), self._centre
+        )
+        px, py, pz = p[..., 0], p[..., 1], p[..., 2]
+        ux, uz = r[:, each, self._k1], r[:, each, self._k1 + 6]  # the in-plane axes, x-z parts
+        wx, wz = r[:, each, self._k2], r[:, each, self._k2 + 6]
+        half_z = xp.abs(uz) * self._e1 + xp.abs(wz) * self._e2
+        bottom = pz - half_z
+        level = level[:, None]
+        wet = bottom < level
+        frac = ops.clip((level - bottom) / (2 * half_z + 1e-9), high=1.0)
+        frac = xp.where(wet, frac, 0.0)
+        cvel = physics.field("cvel")[:, self.bodies]
+        com = physics.field("subtree_com")[:, self._roots]
+        ipos = physics.field("xipos")[:, self.bodies]
+        ax, az = ipos[..., 0], ipos[..., 2]
+        buoyancy = self.density * self.area * frac * self._gravity  # vertical, at the centre
+        ry = py - com[..., 1]
+        # the edges: outward normal (nx, nz), its midpoint (mx, mz) and that point's velocity
+        nx = xp.stack((ux, ux, wx, wx), axis=2) * self._edge_sign
+        nz = xp.stack((uz, uz, wz, wz), axis=2) * self._edge_sign
+        mx, mz = px[..., None] + self._offset * nx, pz[..., None] + self._offset * nz
+        w_x, w_y, w_z = cvel[..., 0:1], cvel[..., 1:2], cvel[..., 2:3]
+        vx = cvel[..., 3:4] + w_y * (mz - com[..., 2:3]) - (w_z[..., 0] * ry)[..., None]
+        vz = cvel[..., 5:6] + (w_x[..., 0] * ry)[..., None] - w_y * (mx - com[..., 0:1])
+        speed2 = vx * vx + vz * vz
+        inv = 1.0 / xp.sqrt(ops.clip(speed2, low=1e-18))
+        n_v = (nx * vx + nz * vz) * inv
+        leading = (speed2 >= 1e-18) & (n_v > 0.0)  # trailing edges feel nothing
+        t_v = (nx * vz - nz * vx) * inv  # tangent (-nz, nx) . v_hat
+        base = self._length * self.density * speed2 * frac[..., None]
+        drag = ops.clip(DRAG_MOD * n_v * base, high=MAX_DRAG)
+        lift = ops.clip(LIFT_MOD * n_v * t_v * base, high=MAX_LIFT)
+        fx = xp.where(leading, (-drag * vx - lift * vz) * inv, 0.0)  # -drag v + lift perp(v)
+        fz = xp.where(leading, (-drag * vz + lift * vx) * inv, 0.0)
+        torque = (mz - az[..., None]) * fx - (mx - ax[..., None]) * fz
+        per_geom = xp.stack(
+            (fx.sum(axis=2), buoyancy + fz.sum(axis=2), torque.sum(axis=2) - (px - ax) * buoyancy),
+            axis=2,
+        )
+        if self._pushed.shape[0]:
+            push = self._push(physics, nx, nz, frac, ax, az)  # (N, pushed, 3)
+            per_geom = per_geom + xp.einsum("npk,pg->ngk", push, self._select)
+        return xp.einsum("ngk,gb->nbk", per_geom, self._to_body), (self.area * frac).sum(axis=1)
+
+    def _push(self, physics, nx, nz, frac, ax, az):
+        """(N, pushed geoms, 3) swimming thrust: the water's reaction to the motors' torques,
+        at their joint anchors."""
+        ops, xp, g = self.ops, self.ops.xp, self._pushed
+        q = physics.field("qpos")[:, self._qadr]
+        active = self._free | ((self._low < q) & (q < self._high))
+        sign = -physics.field("xaxis")[:, self._joint, 1]  # the hinge's 2D counter-clockwise
+        tau = physics.field("qfrc_actuator")[:, self._dof] * sign
+        omega = physics.field("qvel")[:, self._dof] * sign
+        anchor = physics.field("xanchor")[:, self._joint]
+        ax, az = ax[:, g], az[:, g]
+        f_x, f_z = -tau * (az - anchor[..., 2]), tau * (ax - anchor[..., 0])  # tau perp(lever)
+        gain = PUSH_MOD * self.density * (tau + self._inertia * omega) ** 2
+        n_f = nx[:, g] * f_x[..., None] + nz[:, g] * f_z[..., None]
+        magnitude = xp.where(n_f > 0.0, n_f * self._length[g] * gain[..., None], 0.0)
+        clip = self.push_clip
+        push_x = ops.clip(-magnitude * f_x[..., None], -clip, clip).sum(axis=2)
+        push_z = ops.clip(-magnitude * f_z[..., None], -clip, clip).sum(axis=2)
+        push_x = xp.where(active, push_x * frac[:, g], 0.0)
+        push_z = xp.where(active, push_z * frac[:, g], 0.0)
+        torque = (anchor[..., 2] - az) * push_x - (anchor[..., 0] - ax) * push_z
+        return xp.stack((push_x, push_z, torque), axis=2)
 
     def apply(self, data: mujoco.MjData) -> float:
-        """Write this step's water forces into data.xfrc_applied; return the submerged area.
-
-        Plain Python floats over the few geoms of a body: 3-4x faster than numpy on arrays
-        this small.
-        """
-        if (data.geom_xpos[self.geoms, 2] - self._rbound).min() >= self.level:
-            if self._wet:  # dry: nothing reaches the water
-                self.clear(data)
+        """One env: write this step's water forces into `data.xfrc_applied` (cleared once the
+        body has left the water); return the submerged area."""
+        reached = (data.geom_xpos[self.geoms, 2] - self.reach).min() < self.level
+        if not (reached or self._wet):
             return 0.0
-        self._wet = True
-        level, rho, gravity = self.level, self.density, self._gravity
-        xpos = data.geom_xpos[self.geoms].tolist()  # one read per array, then plain floats
-        xmat = data.geom_xmat[self.geoms].tolist()
-        cvel = data.cvel[self.bodies].tolist()
-        com = data.subtree_com[self._tree_roots].tolist()
-        xipos = data.xipos[self.bodies].tolist()
-        per_body: dict[int, list[float]] = {}
-        wet_area = 0.0
-        for i, ((c0, c1, c2), b, k1, k2, e1, e2, area, push) in enumerate(self._rows):
-            r = xmat[i]
-            px, py, pz = xpos[i]
-            px += r[0] * c0 + r[1] * c1 + r[2] * c2  # the bounding box centre
-            py += r[3] * c0 + r[4] * c1 + r[5] * c2
-            pz += r[6] * c0 + r[7] * c1 + r[8] * c2
-            ux, uz, wx, wz = r[k1], r[6 + k1], r[k2], r[6 + k2]  # in-plane axes, x-z parts
-            half_z = abs(uz) * e1 + abs(wz) * e2
-            bottom = pz - half_z
-            if bottom >= level:
-                continue
-            frac = min(1.0, (level - bottom) / (2 * half_z + 1e-9))
-            wet_area += area * frac
-            w_x, w_y, w_z, v_x, _, v_z = cvel[i]
-            cx, cy, cz = com[i]
-            ax, _, az = xipos[i]
-            buoyancy = rho * area * frac * gravity  # vertical, through the centre
-            fx_sum, fz_sum, ty_sum = 0.0, buoyancy, -(px - ax) * buoyancy
-            ry = py - cy
-            # the rectangle's edges: outward normal (nx, nz), half extent to the edge, length
-            edges = (
-                (ux, uz, e1, 2 * e2),
-                (-ux, -uz, e1, 2 * e2),
-                (wx, wz, e2, 2 * e1),
-                (-wx, -wz, e2, 2 * e1),
-            )
-            for nx, nz, offset, length in edges:
-                mx, mz = px + offset * nx, pz + offset * nz  # edge midpoint and its velocity
-                vx = v_x + w_y * (mz - cz) - w_z * ry
-                vz = v_z + w_x * ry - w_y * (mx - cx)
-                speed2 = vx * vx + vz * vz
-                if speed2 < 1e-18:
-                    continue
-                inv = 1.0 / math.sqrt(speed2)
-                n_v = (nx * vx + nz * vz) * inv
-                if n_v <= 0.0:  # trailing edge
-                    continue
-                t_v = (nx * vz - nz * vx) * inv  # tangent (-nz, nx) . v_hat
-                base = length * rho * speed2 * frac
-                drag = min(DRAG_MOD * n_v * base, MAX_DRAG)
-                lift = min(LIFT_MOD * n_v * t_v * base, MAX_LIFT)
-                fx = (-drag * vx - lift * vz) * inv  # -drag v_hat + lift perp(v_hat)
-                fz = (-drag * vz + lift * vx) * inv
-                fx_sum += fx
-                fz_sum += fz
-                ty_sum += (mz - az) * fx - (mx - ax) * fz
-            if push is not None:
-                fx, fz, ty = self._push(data, push, edges, frac, ax, az)
-                fx_sum += fx
-                fz_sum += fz
-                ty_sum += ty
-            acc = per_body.setdefault(b, [0.0, 0.0, 0.0])
-            acc[0] += fx_sum
-            acc[1] += fz_sum
-            acc[2] += ty_sum
-        out = data.xfrc_applied
-        out[self.body_ids] = 0.0
-        for b, (fx, fz, ty) in per_body.items():
-            out[b, 0], out[b, 2], out[b, 4] = fx, fz, ty
-        return wet_area
-
-    def _push(self, data, push, edges, frac, ax, az) -> tuple[float, float, float]:
-        """Swimming thrust: the water's reaction to a motor's torque, applied at its joint anchor.
-
-        Returns (force x, force z, torque y about the body's centre of mass).
-        """
-        joint, dof, qpos_adr, free, low, high, inertia = push
-        q = data.qpos.item(qpos_adr)
-        if not (free or low < q < high):
-            return 0.0, 0.0, 0.0
-        sign = -data.xaxis.item(joint, 1)  # hinge torque as a 2D counter-clockwise torque
-        tau = data.qfrc_actuator.item(dof) * sign
-        omega = data.qvel.item(dof) * sign
-        anchor_x, _, anchor_z = data.xanchor[joint].tolist()
-        f_x, f_z = -tau * (az - anchor_z), tau * (ax - anchor_x)  # tau * perp(lever)
-        gain = PUSH_MOD * self.density * (tau + inertia * omega) ** 2
-        clip = self.push_clip
-        px = pz = 0.0
-        for nx, nz, _, length in edges:
-            n_f = nx * f_x + nz * f_z
-            if n_f > 0.0:
-                magnitude = n_f * length * gain
-                px += min(clip, max(-clip, -magnitude * f_x))
-                pz += min(clip, max(-clip, -magnitude * f_z))
-        px, pz = px * frac, pz * frac
-        return px, pz, (anchor_z - az) * px - (anchor_x - ax) * pz
+        forces, area = self.forces(_OneData(data), np.array([self.level]))
+        data.xfrc_applied[self.body_ids, 0::2] = forces[0]
+        self._wet = bool(reached)
+        return float(area[0])
 
     def clear(self, data: mujoco.MjData) -> None:
         data.xfrc_applied[self.body_ids] = 0.0
@@ -250,3 +246,13 @@ class Water:
     @wet.setter
     def wet(self, value: bool) -> None:
         self._wet = bool(value)
+
+
+class _OneData:
+    """An MjData read as a physics backend of one env (`field(name)`: (1, ...) views)."""
+
+    def __init__(self, data: mujoco.MjData):
+        self.data = data
+
+    def field(self, name: str) -> np.ndarray:
+        return getattr(self.data, name)[None]
