@@ -22,7 +22,7 @@ from test_many_worlds import assert_world_1_steps_as  # noqa: E402
 from acl3d.envs.climbing import Climbing, after_steps  # noqa: E402
 from acl3d.envs.many_worlds import many_worlds  # noqa: E402
 from acl3d.envs.parkour_env import ParkourEnv  # noqa: E402
-from acl3d.terrain.parkour import ParkourTerrain  # noqa: E402
+from acl3d.envs.parkour_lidar import creeper_boxes  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("warp")
 WET = {
@@ -183,15 +183,19 @@ def test_climbers_grasp_per_world_as_the_numpy_climbing_does():
     holding = rec(climbers.heights, "holding") > 0
     assert holding[0].any() and not holding[1].any()
     assert climbers.sim.field("eq_active").tolist() == holding.tolist()
-    # the numpy touch test on the same poses and ceiling line
-    physics, line = WorldsAsNumpy(climbers), rec(climbers.heights, "ceiling").double().numpy()
-    x = template.arena.grid.x
-    climbings = []
-    for i in range(climbers.num_envs):
-        c = Climbing(template.model, template.body.grasp_sensors, template.arena.creeper_geoms)
-        c.terrain = ParkourTerrain(x, line[i], line[i], -np.inf, np.zeros((0, 4)))
-        climbings.append(c)
-    after_steps(climbings, None, physics.field("geom_xpos"), physics.field("geom_xmat"))
+    # the numpy touch test on the same poses, ceiling lines and creepers
+    physics = WorldsAsNumpy(climbers)
+    rows, arena = numpy_rows(climbers, physics), template.arena
+    xpos, xmat = physics.field("geom_xpos"), physics.field("geom_xmat")
+    boxes = creeper_boxes(
+        xpos, xmat, arena.creeper_geoms, rows.creeper_size, rows.creeper_rbound,
+        rows.creeper_count,
+    )  # fmt: skip
+    climbings = [
+        Climbing(template.model, template.body.grasp_sensors, arena.creeper_geoms)
+        for _ in range(climbers.num_envs)
+    ]
+    after_steps(climbings, None, xpos, xmat, rows.ceiling, arena.grid, boxes)
     touching = rec(climbers.heights, "touching").numpy() > 0
     assert touching.tolist() == [c.touching.tolist() for c in climbings]
     # a held hand stays where it grabbed; world 1's climber falls

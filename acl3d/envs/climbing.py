@@ -12,6 +12,10 @@ swinging creeper segments work too). Creepers never collide with bodies, and a h
 the ceiling from slightly below it, so contacts are not needed. A weld holds the world (ceiling)
 or the creeper's body: `model.eq_obj2id` is set at the grab. Anchors and targets live in the
 model: each env compiles its own model, so envs never share them.
+
+The touch test and the release are written once over `ArrayOps` (`hand_touches`, `release`):
+the many-world simulation runs them on torch (`acl3d.envs.tensor_parkour_rules`), where a grab
+records its anchor for the per-world weld data instead of writing a model.
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ import mujoco
 import numpy as np
 
 from acl3d.bodies.base import PREFIX, GraspSensor
-from acl3d.terrain.parkour import ParkourTerrain
+from acl3d.envs.array_ops import NUMPY, ArrayOps
+from acl3d.envs.parkour_lidar import CreeperBoxes, creeper_boxes
 
 TOUCH_MARGIN = 0.01  # metres, the original's AABB padding
 CEILING_MARGIN = 0.03  # a hand within 3 cm under the ceiling touches it
@@ -64,10 +69,7 @@ class Climbing:
             ]
         )
         self.creeper_geoms = creeper_geoms
-        self.nb_creepers = 0  # creeper geoms in use this episode (the pool's first ones)
-        self.creeper_size = np.zeros((len(creeper_geoms), 3))
-        self.creeper_rbound = np.zeros(len(creeper_geoms))
-        self.terrain: ParkourTerrain | None = None
+        self.arena = None  # this episode's (its ceiling line and creepers)
         self._held = np.full(self.nb_sensors, -1)  # creeper geom touched by each hand, -1: ceiling
         self.ready = np.zeros(self.nb_sensors, dtype=bool)
         self.holding = np.zeros(self.nb_sensors, dtype=bool)
@@ -76,9 +78,7 @@ class Climbing:
 
     def reset(self, data: mujoco.MjData, arena) -> None:
         """New episode: everything released; the arena's creepers in use are graspable."""
-        self.terrain = arena.terrain
-        self.nb_creepers = arena.nb_creeper_geoms
-        self.creeper_size, self.creeper_rbound = arena.creeper_size, arena.creeper_rbound
+        self.arena = arena
         data.eq_active[self.eq_ids] = 0
         self.ready[:] = self.holding[:] = self.touching[:] = False
 
@@ -88,7 +88,14 @@ class Climbing:
 
     def after_step(self, data: mujoco.MjData) -> None:
         """Update touch flags; ready, free hands that touch a graspable surface grab it."""
-        after_steps([self], lambda i: data, data.geom_xpos[None], data.geom_xmat[None])
+        arena, xpos, xmat = self.arena, data.geom_xpos[None], data.geom_xmat[None]
+        boxes = creeper_boxes(
+            xpos, xmat, self.creeper_geoms, arena.creeper_size[None],
+            arena.creeper_rbound[None], np.array([arena.nb_creeper_geoms]),
+        )  # fmt: skip
+        after_steps(
+            [self], lambda i: data, xpos, xmat, arena.ceiling_heights[None], arena.grid, boxes
+        )
 
     def state(self) -> np.ndarray:
         """Per sensor [touching a graspable surface, holding], as the original's sensor state."""
@@ -113,57 +120,60 @@ class Climbing:
 def before_steps(climbings: Sequence[Climbing], eq_active: np.ndarray, grasp_actions) -> None:
     """`Climbing.before_step` of N envs' climbers at once: eq_active (N, neq) their weld flags,
     grasp_actions (N, hands)."""
-    ready = grasp_actions > 0
     holding = np.stack([c.holding for c in climbings])
-    release = holding & ~ready
+    ready, holding = release(grasp_actions, holding)
+    eq_active[:, climbings[0].eq_ids] = holding
     for i, c in enumerate(climbings):
-        c.ready = ready[i]
-    for i in np.flatnonzero(release.any(axis=1)):
-        c = climbings[i]
-        eq_active[i, c.eq_ids[release[i]]] = 0
-        c.holding &= c.ready
+        c.ready, c.holding = ready[i], holding[i]
 
 
-def after_steps(climbings: Sequence[Climbing], row_data, xpos, xmat) -> None:
+def release(grasp_actions, holding):
+    """(ready, holding) (N, hands): a positive grasp action readies a hand to grab, any other
+    releases its hold."""
+    ready = grasp_actions > 0.0
+    return ready, holding & ready
+
+
+def after_steps(climbings, row_data, xpos, xmat, ceilings, grid, boxes: CreeperBoxes) -> None:
     """`Climbing.after_step` of N envs' climbers (of one body) at once: touch flags from the
-    geoms' poses xpos (N, ngeom, 3) and xmat (N, ngeom, 9), then the grabs, each on its env's
-    data (`row_data(i)`). Element by element the arithmetic of one env alone, whatever N."""
+    hands' poses in xpos (N, ngeom, 3), the envs' ceiling lines (N, ncol) on `grid` and their
+    creeper boxes, then the grabs, each on its env's data (`row_data(i)`) and model."""
     first = climbings[0]
     points = xpos[:, first.geom_ids]  # (N, hands, 3)
-    touching, held = _touches(climbings, points, xpos, xmat)
+    touching, inside = hand_touches(NUMPY, points, first.radius, ceilings, grid, boxes)
+    held = np.full(touching.shape, -1)  # the creeper geom each hand touches (-1: the ceiling)
+    if inside is not None:
+        on_creeper = inside.any(axis=2) & ~touching  # the ceiling wins when both are touched
+        held[on_creeper] = first.creeper_geoms[inside.argmax(axis=2)[on_creeper]]
+        touching = touching | on_creeper
     for i, c in enumerate(climbings):
         c.touching, c._held = touching[i], held[i]
         for hand in np.flatnonzero(c.ready & ~c.holding & c.touching):
             c._grab(row_data(i), hand, points[i, hand], c._held[hand])
 
 
-def _touches(climbings, points, xpos, xmat) -> tuple[np.ndarray, np.ndarray]:
-    """(N, hands) touching the ceiling or a creeper, and the creeper geom each hand touches
-    (-1: the ceiling or none; the ceiling wins when both are touched)."""
-    first = climbings[0]
-    radius = first.radius
+def hand_touches(ops: ArrayOps, points, radius, ceilings, grid, boxes: CreeperBoxes):
+    """(touching the ceiling (N, hands), inside (N, hands, P): in a creeper box in use within
+    reach, or None when no box is near any hand and `ops` can tell) for hands at `points`
+    (N, hands, 3) of `radius` (hands,). Written once for numpy and torch."""
+    xp = ops.xp
     pad = radius + TOUCH_MARGIN
-    ceilings = np.stack([c.terrain.ceiling_at(points[i, :, 0]) for i, c in enumerate(climbings)])
-    ceiling = points[:, :, 2] + radius + CEILING_MARGIN >= ceilings
-    held = np.full(ceiling.shape, -1)
-    count = np.array([c.nb_creepers for c in climbings])
-    if not count.any():
-        return ceiling, held
-    used = int(count.max())
-    pool = first.creeper_geoms[:used]
-    rel = points[:, :, None, :] - xpos[:, pool][:, None, :, :]  # (N, hands, P, 3)
-    rbound = np.stack([c.creeper_rbound[:used] for c in climbings])
-    reach = rbound + pad.max()
-    # geoms near any hand (within their bounding sphere), among those in use
-    near = (np.einsum("nspk,nspk->nsp", rel, rel) <= (reach * reach)[:, None, :]).any(axis=1)
-    near &= np.arange(used) < count[:, None]
-    if not near.any():
-        return ceiling, held
-    rot = xmat[:, pool].reshape(len(climbings), used, 3, 3)
-    local = np.einsum("nspk,npkj->nspj", rel, rot)
-    size = np.stack([c.creeper_size[:used] for c in climbings])
-    box = size[:, None, :, :] + pad[None, :, None, None]
-    inside = np.all(np.abs(local) <= box, axis=-1) & near[:, None, :]
-    on_creeper = inside.any(axis=2) & ~ceiling
-    held[on_creeper] = pool[inside.argmax(axis=2)[on_creeper]]
-    return ceiling | on_creeper, held
+    under = line_at(ops, ceilings, points[..., 0], grid)
+    at_ceiling = points[..., 2] + radius + CEILING_MARGIN >= under
+    rel = points[:, :, None, :] - boxes.centres[:, None]  # (N, hands, P, 3)
+    reach = boxes.rbound + pad.max()  # a box's bounding radius, padded
+    near = ((rel * rel).sum(axis=-1) <= (reach * reach)[:, None]).any(axis=1) & boxes.used
+    if not ops.needed(near):
+        return at_ceiling, None
+    if boxes.rotations is not None:  # into each box's frame (swinging creepers)
+        rel = xp.einsum("nspk,npkj->nspj", rel, boxes.rotations)
+    box = boxes.half[:, None] + pad[None, :, None, None]
+    return at_ceiling, (xp.abs(rel) <= box).all(axis=-1) & near[:, None]
+
+
+def line_at(ops: ArrayOps, lines, x, grid):
+    """Lines on the grid's columns (N, ncol) at x (N, k): linear, constant past their ends."""
+    u = ops.clip((x - grid.x_min) / grid.cell, 0.0, grid.ncol - 1.0)
+    j = ops.clip(ops.to_int(ops.xp.floor(u)), high=grid.ncol - 2)
+    a, b = ops.gather(lines, j), ops.gather(lines, j + 1)
+    return a + (u - j) * (b - a)

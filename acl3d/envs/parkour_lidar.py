@@ -39,6 +39,18 @@ class CreeperBoxes(NamedTuple):
     used: object
 
 
+def creeper_boxes(xpos, xmat, pool, size, rbound, count) -> CreeperBoxes:
+    """The CPU envs' creeper boxes: the poses of the pool's geoms (N, ngeom, 3) and (N, ngeom,
+    9), their half sizes (N, P, 3) and bounding radii (N, P), the first `count` (N,) in use
+    (the pool cut after the last box any env uses)."""
+    n, used = len(xpos), int(count.max())
+    pool = pool[:used]
+    return CreeperBoxes(
+        xpos[:, pool], xmat[:, pool].reshape(n, -1, 3, 3), size[:, :used], rbound[:, :used],
+        np.arange(used) < count[:, None],
+    )  # fmt: skip
+
+
 class ParkourLidar(TerrainSensor):
     """The typed lidar of Parkour's rules (see the module docstring): `nb_rays` fractions in
     [0, 1] (1: nothing within range) and as many surface flags (water -1, creeper +1, else 0)."""
@@ -86,14 +98,11 @@ class ParkourLidar(TerrainSensor):
     # ------------------------------------------------------------------ the CPU envs
     def read(self, model, data, origin) -> np.ndarray:
         """Fractions in [0, 1] (1 = nothing within range) for this env's arena alone."""
-        arena, pool = self.arena, self._pool
-        creepers = CreeperBoxes(
-            data.geom_xpos[pool][None],
-            data.geom_xmat[pool].reshape(1, -1, 3, 3),
-            arena.creeper_size[None],
-            arena.creeper_rbound[None],
-            (np.arange(len(pool)) < arena.nb_creeper_geoms)[None],
-        )
+        arena = self.arena
+        creepers = creeper_boxes(
+            data.geom_xpos[None], data.geom_xmat[None], self._pool, arena.creeper_size[None],
+            arena.creeper_rbound[None], np.array([arena.nb_creeper_geoms]),
+        )  # fmt: skip
         fractions, _ = self.cast(
             arena.heights[None],
             arena.ceiling_heights[None],
@@ -106,14 +115,10 @@ class ParkourLidar(TerrainSensor):
     def read_rows(self, physics, rows, origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(fractions (N, rays) in [0, 1], surface flags (N, rays)) for the N envs of `rows`,
         rays from `origins` (N, 3)."""
-        n, pool = len(origins), self._pool
-        creepers = CreeperBoxes(
-            physics.field("geom_xpos")[:, pool],
-            physics.field("geom_xmat")[:, pool].reshape(n, -1, 3, 3),
-            rows.creeper_size,
-            rows.creeper_rbound,
-            np.arange(len(pool)) < rows.creeper_count[:, None],
-        )
+        creepers = creeper_boxes(
+            physics.field("geom_xpos"), physics.field("geom_xmat"), self._pool,
+            rows.creeper_size, rows.creeper_rbound, rows.creeper_count,
+        )  # fmt: skip
         return self.cast(rows.ground, rows.ceiling, rows.water_level, origins, creepers)
 
     # ------------------------------------------------------------------ casting

@@ -22,7 +22,7 @@ import numpy as np
 from acl3d.bodies.base import BoundBody
 from acl3d.envs import env_state
 from acl3d.envs.climbing import after_steps, before_steps
-from acl3d.envs.parkour_lidar import ParkourLidar
+from acl3d.envs.parkour_lidar import ParkourLidar, creeper_boxes
 from acl3d.envs.track_rules import FAIL_REWARD, EpisodeRows, Outcome, TrackRules, torque_use
 
 SURVIVAL_STEPS = 600
@@ -201,7 +201,12 @@ class ParkourRules(TrackRules):
         if self.climber:
             climbings = [arena.climbing for arena in rows.arenas]
             xpos, xmat = physics.field("geom_xpos"), physics.field("geom_xmat")
-            after_steps(climbings, physics.row_data, xpos, xmat)
+            boxes = creeper_boxes(
+                xpos, xmat, self.arena.creeper_geoms, rows.creeper_size, rows.creeper_rbound,
+                rows.creeper_count,
+            )  # fmt: skip
+            grid = self.arena.grid
+            after_steps(climbings, physics.row_data, xpos, xmat, rows.ceiling, grid, boxes)
         alive = ~rows.dead  # a dead body plays zero actions, which cost nothing
         died = self._update_survival(physics, rows)
         x, obs = self.observe_rows(physics, rows)

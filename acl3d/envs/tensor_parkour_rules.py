@@ -2,11 +2,12 @@
 
 The rules shared with the CPU envs run here on torch: the tracks' part (`TrackRules`: head, motor
 state, shaping, servos), the typed lidar (`ParkourLidar.cast`, on the records' lines and boxes),
-the water forces (`Water.forces`), the survival counters and critical contacts
-(`count_survival`, `critical_touch`). What is this module's own: reading them from each world's
-record, dead bodies playing zeros, and the climbers' grasps (`Climbing`'s touch, grab and
-release, for all worlds at once), with no per-world Python and no host round trip;
-tests/test_many_worlds_parkour.py checks it against the CPU env on the same physics.
+the water forces (`Water.forces`), the climbers' touch test and release (`hand_touches`,
+`release`), the survival counters and critical contacts (`count_survival`, `critical_touch`).
+What is this module's own: reading and writing them through each world's record, dead bodies
+playing zeros, and a grab's anchor (welded to the world: creepers are static), for all worlds at
+once with no per-world Python and no host round trip; tests/test_many_worlds_parkour.py checks it
+against the CPU env on the same physics.
 
 Each world's episode lives in one float row, its *record* (`ParkourRecord`: ground and ceiling
 lines, water level, creeper boxes, survival counters, grasp flags and anchors, the water forces
@@ -23,7 +24,7 @@ import numpy as np
 import torch
 
 from acl3d.envs.array_ops import TorchOps
-from acl3d.envs.climbing import CEILING_MARGIN, TOUCH_MARGIN
+from acl3d.envs.climbing import hand_touches, release
 from acl3d.envs.parkour_arena import CEILING_RANGE, CREEPER_HALF_DEPTH
 from acl3d.envs.parkour_lidar import CreeperBoxes, ParkourLidar
 from acl3d.envs.parkour_rules import ParkourRules, count_survival, critical_touch
@@ -89,20 +90,18 @@ class TensorParkourLidar:
 
     def read_batch(self, record: torch.Tensor, origins: torch.Tensor, rotations=None):
         rec = self.record
-        cx, cz, hx, hz, used = rec.creepers(record)
-        half = torch.stack((hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz), -1)
-        boxes = CreeperBoxes(
-            torch.stack((cx, torch.zeros_like(cx), cz), -1),
-            None,  # static creepers stand upright
-            half,
-            half.norm(dim=-1),
-            used,
-        )
         fractions, flags = self.lidar.cast(
             rec(record, "ground"), rec(record, "ceiling"), rec(record, "water")[:, 0], origins,
-            boxes,
+            self.creeper_boxes(record),
         )  # fmt: skip
         return torch.cat((fractions, flags), dim=1)
+
+    def creeper_boxes(self, record: torch.Tensor) -> CreeperBoxes:
+        """The worlds' creeper boxes from their records: static, upright, at y = 0."""
+        cx, cz, hx, hz, used = self.record.creepers(record)
+        half = torch.stack((hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz), -1)
+        centres = torch.stack((cx, torch.zeros_like(cx), cz), -1)
+        return CreeperBoxes(centres, None, half, half.norm(dim=-1), used)
 
 
 class TensorParkourRules(TrackRules):
@@ -127,6 +126,7 @@ class TensorParkourRules(TrackRules):
         f = {"device": device, "dtype": dtype}
         self.device, self.dtype = device, dtype
         self.hands, self.kind, self.end_on_death = hands, rules.kind, rules.end_on_death
+        self.grid = arena.grid
         self.survival_steps = rules.survival_steps
         self.critical_any = ops.index(rules._critical_any)
         self.critical_ceiling = ops.index(rules._critical_ceiling)
@@ -155,11 +155,10 @@ class TensorParkourRules(TrackRules):
         xfrc = sim.field("xfrc_applied")
         xfrc[:, self.water.body_ids, 0::2] = rec(heights, "forces").unflatten(1, (-1, 3))
         if self.hands:
-            ready = actions[:, -self.hands :] > 0.0
+            ready, holding = release(actions[:, -self.hands :], rec(heights, "holding") > 0.0)
             rec(heights, "ready").copy_(ready)
-            holding = rec(heights, "holding")
-            holding.mul_(ready)
-            sim.field("eq_active")[:, self.eq_ids] = holding > 0.0
+            rec(heights, "holding").copy_(holding)
+            sim.field("eq_active")[:, self.eq_ids] = holding
             weld = self.weld.expand(len(actions), -1, -1).clone()
             weld[..., 0:3] = rec(heights, "anchors").unflatten(1, (-1, 3))
             sim.weld_anchors()[:, self.eq_ids] = weld
@@ -167,22 +166,15 @@ class TensorParkourRules(TrackRules):
 
     # ------------------------------------------------------------------ after physics
     def _grasp(self, sim: Simulation, record: torch.Tensor) -> None:
-        """Touch flags; ready, free hands touching the ceiling or a creeper grab it."""
+        """Touch flags; ready, free hands touching the ceiling or a creeper grab it where they
+        are (a weld to the world: creepers are static)."""
         rec = self.record
         points = sim.field("geom_xpos")[:, self.hand_geoms]  # (N, hands, 3)
-        pad = self.radius + TOUCH_MARGIN
-        ceiling = self._line_at(rec(record, "ceiling"), points[..., 0])
-        touching = points[..., 2] + self.radius + CEILING_MARGIN >= ceiling
-        cx, cz, hx, hz, used = rec.creepers(record)
-        rel_x = points[..., 0:1] - cx[:, None]  # (N, hands, pool); creepers sit at y = 0
-        rel = torch.stack(
-            (rel_x, points[..., 1:2].expand_as(rel_x), points[..., 2:3] - cz[:, None]), -1
-        )
-        box = torch.stack((hx, torch.full_like(hx, CREEPER_HALF_DEPTH), hz), -1)[:, None]
-        reach = box[:, 0].norm(dim=-1) + pad.max()  # bounding radius + pad, as Climbing's
-        near = ((rel * rel).sum(-1) <= (reach * reach)[:, None]).any(dim=1) & used
-        inside = ((rel.abs() <= box + pad[None, :, None, None]).all(-1) & near[:, None]).any(-1)
-        touching = touching | inside
+        at_ceiling, inside = hand_touches(
+            self.ops, points, self.radius, rec(record, "ceiling"), self.grid,
+            self.lidar.creeper_boxes(record),
+        )  # fmt: skip
+        touching = at_ceiling | inside.any(axis=2)
         rec(record, "touching").copy_(touching)
         ready, holding = rec(record, "ready") > 0.0, rec(record, "holding") > 0.0
         grab = ready & ~holding & touching
@@ -190,14 +182,6 @@ class TensorParkourRules(TrackRules):
         anchors.copy_(torch.where(grab[..., None], points, anchors))
         holding |= grab
         rec(record, "holding").copy_(holding)
-
-    def _line_at(self, line: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """A line on the grid's columns (N, ncol) at x (N, k), linear, constant past its ends."""
-        s = self.lidar
-        u = ((x - s.x_min) / s.cell).clamp(0.0, s.ncol - 1)
-        j = u.floor().long().clamp(max=s.ncol - 2)
-        a, b = line.gather(1, j), line.gather(1, j + 1)
-        return a + (u - j) * (b - a)
 
     def _survive(self, sim: Simulation, record: torch.Tensor) -> torch.Tensor:
         """Count consecutive steps in/out of water; (N,) flags: the body died this step."""
