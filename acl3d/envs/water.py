@@ -120,14 +120,14 @@ class Water:
         """The geoms whose body an actuated hinge moves, and that hinge: joint, dof, qpos
         address, unlimited, range, the body's largest inertia."""
         actuated = {int(model.actuator_trnid[a, 0]) for a in range(model.nu)}
-        pushed, table = [], []
+        tables = {}  # geom index -> its body's (last) actuated hinge
         for i, b in enumerate(self.bodies):
             for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
                 if j in actuated and model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE:
-                    pushed.append(i)
-                    table.append((j, model.jnt_dofadr[j], model.jnt_qposadr[j],
-                                  not model.jnt_limited[j], *model.jnt_range[j],
-                                  model.body_inertia[b].max()))  # fmt: skip
+                    tables[i] = (j, model.jnt_dofadr[j], model.jnt_qposadr[j],
+                                 not model.jnt_limited[j], *model.jnt_range[j],
+                                 model.body_inertia[b].max())  # fmt: skip
+        pushed, table = list(tables), list(tables.values())
         self._pushed = np.array(pushed, dtype=int)
         self._select = (self._pushed[:, None] == np.arange(len(self.geoms))).astype(float)
         columns = list(zip(*table)) if table else [()] * 7
