@@ -109,8 +109,10 @@ class Water:
         self._roots = model.body_rootid[self.bodies]
         # geom -> body sums as products with 0/1 matrices (a sum per body, in geom order)
         self._to_body = (self.bodies[:, None] == self.body_ids[None, :]).astype(float)
-        self._each = np.arange(len(geoms))
-        # the rectangle's four edges: which in-plane axis is the normal (+/-), half extents
+        # the rectangle's four edges: which in-plane axis is the normal (+/-), half extents; a
+        # normal's x and z are the matrix entries (geom, column k) and (geom, 6 + k)
+        self._each = np.repeat(np.arange(len(geoms)), 4).reshape(-1, 4)
+        self._axis = np.stack((self._k1, self._k1, self._k2, self._k2), axis=1)
         self._edge_sign = np.array([1.0, -1.0, 1.0, -1.0])
         self._offset = np.stack((self._e1, self._e1, self._e2, self._e2), axis=1)  # (G, 4)
         self._length = 2 * np.stack((self._e2, self._e2, self._e1, self._e1), axis=1)
@@ -142,8 +144,8 @@ class Water:
         for name in ("area", "_e1", "_e2", "_centre", "_to_body", "_edge_sign", "_offset",
                      "_length", "_select", "_low", "_high", "_inertia"):  # fmt: skip
             setattr(out, name, ops.asarray(getattr(self, name)))
-        for name in ("geoms", "bodies", "_roots", "_k1", "_k2", "_each", "_pushed", "_joint",
-                     "_dof", "_qadr", "body_ids"):  # fmt: skip
+        for name in ("geoms", "bodies", "_roots", "_each", "_axis", "_pushed", "_joint", "_dof",
+                     "_qadr", "body_ids"):  # fmt: skip
             setattr(out, name, ops.index(getattr(self, name)))
         out._free = ops.index(self._free.astype(int)) > 0
         return out
@@ -153,15 +155,16 @@ class Water:
         water at `level` (N,) on the bodies `body_ids` of N envs, and (N,) submerged areas."""
         ops, xp = self.ops, self.ops.xp
         xmat = physics.field("geom_xmat")[:, self.geoms]
-        n, g, each = xmat.shape[0], xmat.shape[1], self._each
+        n, g = xmat.shape[0], xmat.shape[1]
         r = xmat.reshape(n, g, 9)
         p = physics.field("geom_xpos")[:, self.geoms] + xp.einsum(
             "ngij,gj->ngi", r.reshape(n, g, 3, 3), self._centre
         )
         px, py, pz = p[..., 0], p[..., 1], p[..., 2]
-        ux, uz = r[:, each, self._k1], r[:, each, self._k1 + 6]  # the in-plane axes, x-z parts
-        wx, wz = r[:, each, self._k2], r[:, each, self._k2 + 6]
-        half_z = xp.abs(uz) * self._e1 + xp.abs(wz) * self._e2
+        # the edges' outward normals (N, G, 4): the in-plane axes' x-z parts, signed
+        nx = r[:, self._each, self._axis] * self._edge_sign
+        nz = r[:, self._each, self._axis + 6] * self._edge_sign
+        half_z = xp.abs(nz[..., 0]) * self._e1 + xp.abs(nz[..., 2]) * self._e2
         bottom = pz - half_z
         level = level[:, None]
         wet = bottom < level
@@ -173,9 +176,7 @@ class Water:
         ax, az = ipos[..., 0], ipos[..., 2]
         buoyancy = self.density * self.area * frac * self._gravity  # vertical, at the centre
         ry = py - com[..., 1]
-        # the edges: outward normal (nx, nz), its midpoint (mx, mz) and that point's velocity
-        nx = xp.stack((ux, ux, wx, wx), axis=2) * self._edge_sign
-        nz = xp.stack((uz, uz, wz, wz), axis=2) * self._edge_sign
+        # each edge's midpoint (mx, mz) and that point's velocity
         mx, mz = px[..., None] + self._offset * nx, pz[..., None] + self._offset * nz
         w_x, w_y, w_z = cvel[..., 0:1], cvel[..., 1:2], cvel[..., 2:3]
         vx = cvel[..., 3:4] + w_y * (mz - com[..., 2:3]) - (w_z[..., 0] * ry)[..., None]
@@ -191,9 +192,8 @@ class Water:
         fx = xp.where(leading, (-drag * vx - lift * vz) * inv, 0.0)  # -drag v + lift perp(v)
         fz = xp.where(leading, (-drag * vz + lift * vx) * inv, 0.0)
         torque = (mz - az[..., None]) * fx - (mx - ax[..., None]) * fz
-        per_geom = xp.stack(
-            (fx.sum(axis=2), buoyancy + fz.sum(axis=2), torque.sum(axis=2) - (px - ax) * buoyancy),
-            axis=2,
+        per_geom = _columns(
+            xp, fx.sum(axis=2), buoyancy + fz.sum(axis=2), torque.sum(axis=2) - (px - ax) * buoyancy
         )
         if self._pushed.shape[0]:
             push = self._push(physics, nx, nz, frac, ax, az)  # (N, pushed, 3)
@@ -221,7 +221,7 @@ class Water:
         push_x = xp.where(active, push_x * frac[:, g], 0.0)
         push_z = xp.where(active, push_z * frac[:, g], 0.0)
         torque = (anchor[..., 2] - az) * push_x - (anchor[..., 0] - ax) * push_z
-        return xp.stack((push_x, push_z, torque), axis=2)
+        return _columns(xp, push_x, push_z, torque)
 
     def apply(self, data: mujoco.MjData) -> float:
         """One env: write this step's water forces into `data.xfrc_applied` (cleared once the
@@ -246,6 +246,11 @@ class Water:
     @wet.setter
     def wet(self, value: bool) -> None:
         self._wet = bool(value)
+
+
+def _columns(xp, *arrays):
+    """(..., k) from k arrays (...): `stack` on the last axis (numpy's `stack` costs 6 us)."""
+    return xp.concatenate([a[..., None] for a in arrays], axis=-1)
 
 
 class _OneData:
