@@ -2,8 +2,9 @@
 many-world simulation.
 
 Both are written once against an `ArrayOps`: `ops.xp` is the library itself (numpy or torch) for
-the functions both spell and compute alike (`where`, `abs`, `sign`, `floor`, `hypot`,
-`zeros_like`, `concatenate(..., axis=)`, and array methods such as `.sum(axis=)`, `.any(axis=)`,
+the functions both spell and compute alike (`where`, `abs`, `sign`, `floor`, `sqrt`, `hypot`,
+`minimum` / `maximum` of two arrays, `amin` / `amax`, `einsum`, `zeros_like`,
+`concatenate(..., axis=)`, and array methods such as `.sum(axis=)`, `.any(axis=)`, `.all(axis=)`,
 `.reshape`), and `ArrayOps` methods cover the rest:
 
 * `atan2`: numpy's vector `arctan2` differs from the C library's `atan2` by one ulp on about 7%
