@@ -90,7 +90,6 @@ class ParkourRules(TrackRules):
         self._critical_ceiling = self._sensor_adr(bound.model, critical, against="ceiling")
         self.end_on_death = end_on_death
         self.survival_steps = survival_steps
-        self.water = arena.water  # the same body geoms in every env's model
 
     def extra_obs_size(self) -> int:
         return 2 + self.lidar.nb_rays  # under_water and dead flags, surface flags
@@ -132,7 +131,7 @@ class ParkourRules(TrackRules):
         if self.climber:
             climbings = [arena.climbing for arena in rows.arenas]
             before_steps(climbings, physics.field("eq_active"), actions[:, -self._nb_grasp :])
-        water = self.water
+        water = self.arena.water  # its tables: the same body geoms in every env's model
         bottoms = physics.field("geom_xpos")[:, water.geoms, 2] - water.reach
         reached = bottoms.min(axis=1) < rows.water_level
         wet = np.fromiter((arena.water.wet for arena in rows.arenas), bool, len(reached))

@@ -82,8 +82,6 @@ class TensorParkourLidar:
         self.ops, self.record = ops, record
         self.lidar = lidar.on(ops)
         self.nb_rays = 2 * lidar.nb_rays
-        grid = lidar.arena.grid
-        self.x_min, self.cell, self.ncol = grid.x_min, grid.cell, grid.ncol
 
     def batch_heights(self, n: int) -> torch.Tensor:
         return self.ops.full((n, self.record.width), 0.0)
@@ -124,7 +122,6 @@ class TensorParkourRules(TrackRules):
         sensor = TensorParkourLidar(rules.lidar, self.record, ops)
         super().__init__(rules.bound, sensor, rules.end_x, rules.success_return)
         f = {"device": device, "dtype": dtype}
-        self.device, self.dtype = device, dtype
         self.hands, self.kind, self.end_on_death = hands, rules.kind, rules.end_on_death
         self.grid = arena.grid
         self.survival_steps = rules.survival_steps
@@ -206,7 +203,7 @@ class TensorParkourRules(TrackRules):
         obs = torch.cat(
             (
                 track[:, :head],
-                under[:, None].to(self.dtype),
+                under[:, None].to(self.ops.dtype),
                 dead[:, None],
                 track[:, head:grasp],
                 hands,

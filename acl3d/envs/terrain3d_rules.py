@@ -21,7 +21,7 @@ from acl3d.bodies.base import BoundBody
 from acl3d.envs.array_ops import ArrayOps
 from acl3d.envs.height_scan import HeightScan
 from acl3d.envs.lidar import Lidar
-from acl3d.envs.track_rules import ANGLE_PENALTY, TrackRules, _sensor_on
+from acl3d.envs.track_rules import ANGLE_PENALTY, TrackRules, sensor_on
 
 PROGRESS_GAIN = 15.0  # reward per metre along x (the course is ~22 m from spawn to finish)
 HEADING_PENALTY = 5.0  # per radian of yaw away from +x
@@ -37,7 +37,7 @@ class Terrain3DRules(TrackRules):
         super().__init__(bound, sensor, end_x)
 
     def on(self, ops: ArrayOps) -> Terrain3DRules:
-        sensor = _sensor_on(self.lidar, ops)
+        sensor = sensor_on(self.lidar, ops)
         return Terrain3DRules(self.bound, sensor, self.half_width, self.end_x)
 
     def extra_obs_size(self) -> int:

@@ -158,7 +158,7 @@ class TrackRules:
     def on(self, ops: ArrayOps) -> TrackRules:
         """These rules over arrays of `ops` (the many-world simulation's tensors); the sensor
         must read rows of heights (`on(ops)` too)."""
-        return TrackRules(self.bound, _sensor_on(self.lidar, ops), self.end_x, self.success_return)
+        return TrackRules(self.bound, sensor_on(self.lidar, ops), self.end_x, self.success_return)
 
     @staticmethod
     def _sensor_adr(model: mujoco.MjModel, geom_ids: np.ndarray, against=None) -> np.ndarray:
@@ -365,7 +365,7 @@ class TrackRules:
         """Restore what `check_episode_state` returned."""
 
 
-def _sensor_on(sensor, ops: ArrayOps):
+def sensor_on(sensor, ops: ArrayOps):
     """`sensor` reading arrays of `ops`: the height-line lidar and the height scan (rows of
     heights); a ray-cast lidar reads one CPU env's scene and has no such form."""
     if not sensor.reads_height_rows:

@@ -94,12 +94,12 @@ class Water:
         )
         self.geoms = geoms
         axes = [silhouette(model, g) for g in geoms]
-        self._k1 = np.array([a[0] for a in axes])
-        self._k2 = np.array([a[1] for a in axes])
+        k1 = np.array([a[0] for a in axes], dtype=int)
+        k2 = np.array([a[1] for a in axes], dtype=int)
         self.area = np.array([a[2] for a in axes])
         half = model.geom_aabb[geoms, 3:]
-        self._e1 = half[np.arange(len(geoms)), self._k1]
-        self._e2 = half[np.arange(len(geoms)), self._k2]
+        self._e1 = half[np.arange(len(geoms)), k1]
+        self._e2 = half[np.arange(len(geoms)), k2]
         self.reach = model.geom_rbound[geoms]
         self._centre = model.geom_aabb[geoms, :3]  # the bounding box centre in the geom frame
         self.bodies = model.geom_bodyid[geoms]
@@ -112,7 +112,7 @@ class Water:
         # the rectangle's four edges: which in-plane axis is the normal (+/-), half extents; a
         # normal's x and z are the matrix entries (geom, column k) and (geom, 6 + k)
         self._each = np.repeat(np.arange(len(geoms)), 4).reshape(-1, 4)
-        self._axis = np.stack((self._k1, self._k1, self._k2, self._k2), axis=1)
+        self._axis = np.stack((k1, k1, k2, k2), axis=1)
         self._edge_sign = np.array([1.0, -1.0, 1.0, -1.0])
         self._offset = np.stack((self._e1, self._e1, self._e2, self._e2), axis=1)  # (G, 4)
         self._length = 2 * np.stack((self._e2, self._e2, self._e1, self._e1), axis=1)
