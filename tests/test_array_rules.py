@@ -102,6 +102,12 @@ def test_the_operations_that_differ_agree_between_libraries(n):
     np.testing.assert_array_equal(NUMPY.gather(a, index), np.take_along_axis(a, index, 1))
     got = TORCH64.gather(torch.from_numpy(a), torch.from_numpy(index)).numpy()
     np.testing.assert_array_equal(got, np.take_along_axis(a, index, 1))
+    start = rng.integers(0, 5, (n, 1))
+    for source in (a, a[0]):  # rows of their own, or one row shared
+        expected = np.take_along_axis(np.broadcast_to(source, a.shape), start + np.arange(6), 1)
+        np.testing.assert_array_equal(NUMPY.window(source, start, 6), expected)
+        got = TORCH64.window(torch.from_numpy(source), torch.from_numpy(start), 6).numpy()
+        np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(NUMPY.running_max(a), np.maximum.accumulate(a, axis=1))
     np.testing.assert_array_equal(
         TORCH64.running_max(torch.from_numpy(a)).numpy(), np.maximum.accumulate(a, axis=1)

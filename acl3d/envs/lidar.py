@@ -103,8 +103,9 @@ class HeightLineLidar(Lidar):
     """
 
     reads_height_rows = True
-    _constants = ("_x_padded", "_slope", "_inv_sin")
-    _indices = ("_slanted", "_vertical", "_window")
+    _constants = ("_x_padded", "_slope", "_inv_sin", "_x_min", "_cell", "_range", "_inv_range")
+    _constants += ("_zero", "_one", "_inf")  # (0-d arrays, see the constructor)
+    _indices = ("_slanted", "_vertical")
 
     def __init__(
         self, arena, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE
@@ -121,16 +122,21 @@ class HeightLineLidar(Lidar):
         self._vertical = NUMPY.index(np.flatnonzero(vertical))  # slices where contiguous
         self._slanted = NUMPY.index(np.flatnonzero(~vertical))
         sin_s = sin[~vertical]
-        self._slope = -cos[self._slanted] / sin_s  # dz/dx of each slanted ray, increasing
-        self._inv_sin = 1.0 / sin_s
+        # (1, rays): numpy's ufuncs take arrays of one shape, as one env's are, faster
+        self._slope = (-cos[self._slanted] / sin_s)[None]  # dz/dx of each slanted ray, increasing
+        self._inv_sin = (1.0 / sin_s)[None]
         self._reach = int(np.ceil(ray_range * sin.max() / self._cell)) + 2
-        self._window = np.arange(self._reach + 2)
         self._width = self._ncol + self._reach + 1
         x = arena.grid.x
         self._x_padded = np.concatenate(
             (x, x[-1] + self._cell * np.arange(1, self._width - self._ncol + 1))
         )
         self._terrain_geom = arena.model.geom("terrain").id
+        # the step's scalars as 0-d arrays: numpy's ufuncs take them faster than Python floats
+        scalars = (self._x_min, self._cell, ray_range, self._inv_range, 0.0, 1.0, np.inf)
+        self._x_min, self._cell, self._range, self._inv_range, self._zero, self._one, self._inf = (
+            np.asarray(v, dtype=np.float64) for v in scalars
+        )
 
     def on(self, ops: ArrayOps) -> HeightLineLidar:
         """This lidar reading arrays of `ops` (the many-world simulation's tensors)."""
@@ -167,27 +173,33 @@ class HeightLineLidar(Lidar):
         envs), so each row is bit-identical to the same env read alone.
         """
         ops, xp = self.ops, self.ops.xp
-        n, rays = heights.shape[0], self._slope.shape[0]
         x0, z0 = origins[:, 0:1], origins[:, 2:3]  # (N, 1)
         j = ops.clip(ops.to_int((x0 - self._x_min) / self._cell), 0, self._ncol - 2)
-        cols = j + self._window  # the origin's column, then those a ray may cross
-        hs, xs = ops.gather(heights, cols), self._x_padded[cols]
+        # the origin's column, then those a ray may cross (copies: rewritten below)
+        width = self._reach + 2
+        hs, xs = ops.window(heights, j, width), ops.window(self._x_padded, j, width)
         frac = (x0 - xs[:, 0:1]) / self._cell
         h0 = hs[:, 0:1] + frac * (hs[:, 1:2] - hs[:, 0:1])  # the terrain right under the origin
-        # the chain from the origin's foot: (x0, h0), then the columns past it
-        xs = xp.concatenate((x0, xs[:, 1:]), axis=1)
-        hs = xp.concatenate((h0, hs[:, 1:]), axis=1)
+        # the chain from the origin's foot (x0, h0) through the columns past it, ending in a
+        # point at infinity: a ray that crosses no segment within reach meets the last one,
+        # whose slope inf / inf is nan, so its distance is nan and it reads 1 (no hit)
+        xs[:, 0:1], hs[:, 0:1] = x0, h0
+        xs[:, -1:], hs[:, -1:] = self._inf, self._inf
         with ops.quiet():  # a column at x0 itself, or a segment parallel to a ray: no hit there
             rise = (hs[:, 1:-1] - z0) / (xs[:, 1:-1] - x0)
-            k = ops.count_below(ops.running_max(rise), self._slope)
-            ends = xp.concatenate((k, k + 1), axis=1)  # the crossed segment: points k and k + 1
-            xe, he = ops.gather(xs, ends), ops.gather(hs, ends)
-            xa, xb, ha, hb = xe[:, :rays], xe[:, rays:], he[:, :rays], he[:, rays:]
+            k = ops.count_below(ops.running_max(rise), self._slope[0])
+            k1 = k + 1  # the crossed segment: points k and k + 1
+            xa, xb, ha, hb = (
+                ops.gather(xs, k),
+                ops.gather(xs, k1),
+                ops.gather(hs, k),
+                ops.gather(hs, k1),
+            )
             s = self._slope
             m = (hb - ha) / (xb - xa)
             x_hit = (z0 - ha + m * xa - s * x0) / (m - s)
-        dist = ops.full((n, self.nb_rays), 0.0)
-        dist[:, self._slanted] = xp.where(k < self._reach, (x_hit - x0) * self._inv_sin, np.inf)
+            dist = ops.full((x0.shape[0], self.nb_rays), 0.0)
+            dist[:, self._slanted] = (x_hit - x0) * self._inv_sin
         dist[:, self._vertical] = z0 - h0
-        out = xp.where(dist <= self.range, dist * self._inv_range, 1.0)
-        return xp.where(z0 <= h0, 0.0, out)  # the origin is inside the terrain
+        out = xp.where(dist <= self._range, dist * self._inv_range, self._one)
+        return xp.where(z0 <= h0, self._zero, out)  # the origin is inside the terrain
