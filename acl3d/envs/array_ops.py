@@ -45,7 +45,8 @@ class ArrayOps(ABC):
 
     @abstractmethod
     def index(self, ids):
-        """Integer indices on this library's device (a contiguous run may stay a slice)."""
+        """Integer indices (or one integer, 0-d) on this library's device (a contiguous run may
+        stay a slice)."""
 
     @abstractmethod
     def full(self, shape, value):
@@ -130,7 +131,7 @@ class NumpyOps(ArrayOps):
         """`ids` as a slice where they are a contiguous ascending run (indexing then gives a
         view, not a gathered copy: the same arithmetic, cheaper numpy calls), else as is."""
         ids = np.asarray(ids, dtype=np.int64)
-        if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        if ids.ndim == 1 and len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
             return slice(int(ids[0]), int(ids[0]) + len(ids))
         return ids
 

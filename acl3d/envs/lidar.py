@@ -105,7 +105,7 @@ class HeightLineLidar(Lidar):
     reads_height_rows = True
     _constants = ("_x_padded", "_slope", "_inv_sin", "_x_min", "_cell", "_range", "_inv_range")
     _constants += ("_zero", "_one", "_inf")  # (0-d arrays, see the constructor)
-    _indices = ("_slanted", "_vertical")
+    _indices = ("_slanted", "_vertical", "_first_col", "_last_col", "_next")
 
     def __init__(
         self, arena, kind: str = "down", nb_rays: int = NB_RAYS, ray_range: float = LIDAR_RANGE
@@ -136,6 +136,9 @@ class HeightLineLidar(Lidar):
         scalars = (self._x_min, self._cell, ray_range, self._inv_range, 0.0, 1.0, np.inf)
         self._x_min, self._cell, self._range, self._inv_range, self._zero, self._one, self._inf = (
             np.asarray(v, dtype=np.float64) for v in scalars
+        )
+        self._first_col, self._last_col, self._next = (
+            np.asarray(v, dtype=np.int64) for v in (0, self._ncol - 2, 1)
         )
 
     def on(self, ops: ArrayOps) -> HeightLineLidar:
@@ -174,7 +177,7 @@ class HeightLineLidar(Lidar):
         """
         ops, xp = self.ops, self.ops.xp
         x0, z0 = origins[:, 0:1], origins[:, 2:3]  # (N, 1)
-        j = ops.clip(ops.to_int((x0 - self._x_min) / self._cell), 0, self._ncol - 2)
+        j = ops.clip(ops.to_int((x0 - self._x_min) / self._cell), self._first_col, self._last_col)
         # the origin's column, then those a ray may cross (copies: rewritten below)
         width = self._reach + 2
         hs, xs = ops.window(heights, j, width), ops.window(self._x_padded, j, width)
@@ -188,7 +191,7 @@ class HeightLineLidar(Lidar):
         with ops.quiet():  # a column at x0 itself, or a segment parallel to a ray: no hit there
             rise = (hs[:, 1:-1] - z0) / (xs[:, 1:-1] - x0)
             k = ops.count_below(ops.running_max(rise), self._slope[0])
-            k1 = k + 1  # the crossed segment: points k and k + 1
+            k1 = k + self._next  # the crossed segment: points k and k + 1
             xa, xb, ha, hb = (
                 ops.gather(xs, k),
                 ops.gather(xs, k1),

@@ -57,6 +57,20 @@ def torque_use(ops: ArrayOps, actions):
     return ops.clip(ops.xp.abs(actions), high=1.0).sum(axis=1)
 
 
+class _Scalars(NamedTuple):
+    """The step's scalars as 0-d arrays of the rules' library (see `TrackRules.__init__`)."""
+
+    zero: object
+    one: object
+    torque: object
+    torque_cost: object
+    progress_gain: object
+    angle_penalty: object
+    fail_reward: object
+    end_x: object
+    success_return: object
+
+
 class Outcome(NamedTuple):
     """What the rules judge after a physics step, (N, ...) arrays: the observation, the step's
     reward, whether the episode ended, the shaping (the next step's `prev_shaping`), whether a
@@ -141,11 +155,18 @@ class TrackRules:
         # the motor state's columns of [angles, speeds, contact flags]
         contact_cols = (starts + 2)[bound.has_contact_flag]
         self._motor_order = ops.index(np.concatenate((starts, starts + 1, contact_cols)))
-        self._inv_speeds = ops.asarray(1.0 / bound.speeds)
-        self._speeds = ops.asarray(bound.speeds)
-        self._angle_correction = ops.asarray(bound.angle_correction)
-        self._planar_gains = ops.asarray(_PLANAR_VELOCITY_GAINS)
+        # per-motor constants as (1, motors) rows and scalars as 0-d arrays: numpy's ufuncs take
+        # operands of one shape (one env's are (1, ...)) and 0-d arrays faster than (motors,)
+        # rows and Python floats
+        self._inv_speeds = ops.asarray(1.0 / bound.speeds)[None]
+        self._speeds = ops.asarray(bound.speeds)[None]
+        self._angle_correction = ops.asarray(bound.angle_correction)[None]
+        self._planar_gains = ops.asarray(_PLANAR_VELOCITY_GAINS)[None]
         self._low_high = ops.asarray(_LOW_HIGH)
+        self._scalar = _Scalars(
+            *map(ops.asarray, (0.0, 1.0, self.body.torque, self.body.torque_cost_per_unit)),
+            *map(ops.asarray, (PROGRESS_GAIN, ANGLE_PENALTY, FAIL_REWARD, end_x, success_return)),
+        )
         self._contact_sensors = ops.index(self._sensor_adr(model, bound.contact_geom_ids))
         self._critical_sensors = ops.index(self._sensor_adr(model, bound.critical_geom_ids))
         self._qpos_index = ops.index(bound.qpos_adr)
@@ -188,14 +209,14 @@ class TrackRules:
         semantics), written to the physics' controls and per-env force caps."""
         ops = self.ops
         motors = actions[:, : self._nb_motors]
-        magnitude = ops.clip(ops.xp.abs(motors), high=1.0) * self.body.torque
+        magnitude = ops.clip(ops.xp.abs(motors), high=self._scalar.one) * self._scalar.torque
         physics.set_force_caps(self._ctrl_index, magnitude[:, :, None] * self._low_high)
         physics.field("ctrl")[:, self._ctrl_index] = self._speeds * ops.xp.sign(motors)
 
     # ------------------------------------------------------------------ physics readings
     def touched(self, physics, sensors):
         """(N, len(sensors)) flags: the geoms of these touch sensors touch anything."""
-        return physics.field("sensordata")[:, sensors] > 0.0
+        return physics.field("sensordata")[:, sensors] > self._scalar.zero
 
     def head(self, physics, out):
         """Write the head observation into out (N, 4 or 9): angle, 2*omega/50, 0.12*vx,
@@ -266,9 +287,9 @@ class TrackRules:
         return x, obs
 
     def shaping(self, x, angle):
-        s = PROGRESS_GAIN * x
+        s = self._scalar.progress_gain * x
         if self.body.head_angle_reward:
-            s = s - ANGLE_PENALTY * self.ops.xp.abs(angle)
+            s = s - self._scalar.angle_penalty * self.ops.xp.abs(angle)
         return s
 
     def potential(self, physics, x, obs):
@@ -279,24 +300,26 @@ class TrackRules:
         """The step's `Outcome` after physics, given the last step's shaping (N,)."""
         x, obs = self.observe(physics, heights)
         shaping = self.potential(physics, x, obs)
-        cost = self.body.torque_cost_per_unit * torque_use(self.ops, actions)
+        cost = self._scalar.torque_cost * torque_use(self.ops, actions)
         reward = shaping - prev_shaping - cost
         critical = self.critical(physics)
         failed, terminated, crossed = self.ending(physics, x, obs, critical)
-        reward = self.ops.xp.where(failed, FAIL_REWARD, reward)
+        reward = self.ops.xp.where(failed, self._scalar.fail_reward, reward)
         return Outcome(obs, reward, terminated, shaping, critical, crossed)
 
     def ending(self, physics, x, obs, critical) -> tuple:
         """(failed, terminated, crossed) flags (N,): on a track, a critical contact or going
         behind the start fails, crossing the end line ends the episode; crossed None (success is
         judged by the return)."""
-        failed = critical | (x < 0.0)
-        return failed, failed | (x > self.end_x), None
+        failed = critical | (x < self._scalar.zero)
+        return failed, failed | (x > self._scalar.end_x), None
 
     def success(self, returns, outcome: Outcome):
         """(N,) success flags of episodes whose return is now `returns`: past the curriculum
         profile's success_return, or across a finish line where the rules have one."""
-        return returns > self.success_return if outcome.crossed is None else outcome.crossed
+        if outcome.crossed is None:
+            return returns > self._scalar.success_return
+        return outcome.crossed
 
     # ------------------------------------------------------------------ the CPU envs' rows
     def new_rows(self, n: int) -> EpisodeRows:
