@@ -344,3 +344,15 @@ def test_config_is_strict(bad, name, tmp_path):
         train(out=str(out), progress_bar=False, **bad)
     assert not out.exists()
     assert TrainConfig(steps=2e6).steps == 2_000_000  # a count written 2e6 is fine
+
+
+def test_switches_set_their_fields_and_off_switches_clear_theirs():
+    from acl3d.cli import build_parser
+    from acl3d.cli.train import options_from_args
+
+    on = ["--eval-stochastic", "--shuffle-dimensions", "--scale-reward"]
+    off = ["--no-progress", "--no-tensorboard", "--no-replay-buffer-save", "--quiet"]
+    options = options_from_args(build_parser().parse_args(["train", *on, *off]))
+    assert options["eval_stochastic"] and options["shuffle_dimensions"] and options["scale_reward"]
+    assert not any(options[k] for k in ("progress_bar", "tensorboard", "save_replay_buffer"))
+    assert options["verbose"] == 0

@@ -260,7 +260,7 @@ def _how_to_continue(run) -> str:
 
 
 # options whose flag is not --FIELD-NAME (switches that turn a default off)
-_FLAGS = {
+_SPELLED_OFF = {
     "progress_bar": "--no-progress",
     "tensorboard": "--no-tensorboard",
     "save_replay_buffer": "--no-replay-buffer-save",
@@ -269,7 +269,7 @@ _FLAGS = {
 
 
 def _flag(field: str) -> str:
-    return _FLAGS.get(field, f"--{field.replace('_', '-')}")
+    return _SPELLED_OFF.get(field, f"--{field.replace('_', '-')}")
 
 
 def option_message(message: str) -> str:
