@@ -111,15 +111,30 @@ def _markdown(rows: list[dict]) -> str:
 def _protocol_facts(folder: Path, runs: list[Run]) -> str:
     doc = yaml.safe_load((folder / "protocol.yaml").read_text()) or {}
     config = (yaml.safe_load((runs[0].path / "config.yaml").read_text()) or {}).get("config", {})
-    seeds = sorted({int(r.labels.get("seed", -1)) for r in runs})
     hardware = doc.get("hardware", {})
     machine = hardware.get("exported_on", {})
+    where = hardware.get("runs_on") or [  # v1's runs predate provenance: the exporting machine
+        f"{machine.get('cpus', '?')} × {machine.get('cpu_model', '?')}"
+    ]
     return (
         f"{config.get('env')} · {config.get('body')} · {config.get('student')} "
         f"({config.get('n_envs')} envs) · budget {int(config.get('steps', 0)):,} steps per run · "
-        f"{len(seeds)} seeds · expert knowledge {config.get('expert_knowledge')} · "
-        f"{len(runs)} runs · hardware: {machine.get('cpus', '?')} × {machine.get('cpu_model', '?')}"
+        f"{_seeds(runs)} · expert knowledge {config.get('expert_knowledge')} · "
+        f"{len(runs)} runs · hardware: {'; '.join(where)}"
         f" ({', '.join(hardware.get('platform', []))}) · exported {doc.get('exported', '?')}"
+    )
+
+
+def _seeds(runs: list[Run]) -> str:
+    """"4 seeds" when every teacher ran the same seeds, else each teacher's (a partial campaign)."""
+    by_teacher: dict[str, list[int]] = {}
+    for run in runs:
+        by_teacher.setdefault(run.teacher, []).append(int(run.labels.get("seed", -1)))
+    sets = {tuple(sorted(seeds)) for seeds in by_teacher.values()}
+    if len(sets) == 1:
+        return f"{len(next(iter(sets)))} seeds"
+    return "seeds " + "; ".join(
+        f"{teacher} {', '.join(map(str, sorted(seeds)))}" for teacher, seeds in by_teacher.items()
     )
 
 
