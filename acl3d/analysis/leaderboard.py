@@ -126,7 +126,7 @@ def _protocol_facts(folder: Path, runs: list[Run]) -> str:
 
 
 def _seeds(runs: list[Run]) -> str:
-    """"4 seeds" when every teacher ran the same seeds, else each teacher's (a partial campaign)."""
+    """The seed count when every teacher ran the same seeds, else each teacher's (a partial run)."""
     by_teacher: dict[str, list[int]] = {}
     for run in runs:
         by_teacher.setdefault(run.teacher, []).append(int(run.labels.get("seed", -1)))
