@@ -87,6 +87,10 @@ class ArrayOps(ABC):
         the row `a` (W,) that all N share, for integers `start` (N, 1) (a new array)."""
 
     @abstractmethod
+    def per_row(self, a):
+        """(N, 1) values, one per row, as an operand against (N, M) arrays (equal results)."""
+
+    @abstractmethod
     def needed(self, mask) -> bool:
         """False only if no entry of `mask` holds and this library can tell cheaply."""
 
@@ -186,6 +190,11 @@ class NumpyOps(ArrayOps):
         cols = start + self._columns(width)
         return a[cols] if a.ndim == 1 else self.gather(a, cols)
 
+    def per_row(self, a):
+        """One row's as a 0-d view: numpy's ufuncs broadcast it at a third of a (1, 1) array's
+        cost."""
+        return a[0, 0, ...] if a.shape == (1, 1) else a
+
     def needed(self, mask) -> bool:
         return bool(mask.any())
 
@@ -253,6 +262,9 @@ class TorchOps(ArrayOps):
     def window(self, a, start, width: int):
         cols = start + self.xp.arange(width, device=self.device)
         return a[cols] if a.ndim == 1 else a.gather(1, cols)
+
+    def per_row(self, a):
+        return a
 
     def needed(self, mask) -> bool:
         return True  # asking would wait for the device

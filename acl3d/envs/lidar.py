@@ -188,6 +188,7 @@ class HeightLineLidar(Lidar):
         # whose slope inf / inf is nan, so its distance is nan and it reads 1 (no hit)
         xs[:, 0:1], hs[:, 0:1] = x0, h0
         xs[:, -1:], hs[:, -1:] = self._inf, self._inf
+        x0, z0 = ops.per_row(x0), ops.per_row(z0)  # operands against (N, columns or rays)
         with ops.quiet():  # a column at x0 itself, or a segment parallel to a ray: no hit there
             rise = (hs[:, 1:-1] - z0) / (xs[:, 1:-1] - x0)
             k = ops.count_below(ops.running_max(rise), self._slope[0])
@@ -201,7 +202,7 @@ class HeightLineLidar(Lidar):
             s = self._slope
             m = (hb - ha) / (xb - xa)
             x_hit = (z0 - ha + m * xa - s * x0) / (m - s)
-            dist = ops.full((x0.shape[0], self.nb_rays), 0.0)
+            dist = ops.full((len(heights), self.nb_rays), 0.0)
             dist[:, self._slanted] = (x_hit - x0) * self._inv_sin
         dist[:, self._vertical] = z0 - h0
         out = xp.where(dist <= self._range, dist * self._inv_range, self._one)
