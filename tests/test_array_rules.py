@@ -105,9 +105,15 @@ def test_the_operations_that_differ_agree_between_libraries(n):
     start = rng.integers(0, 5, (n, 1))
     for source in (a, a[0]):  # rows of their own, or one row shared
         expected = np.take_along_axis(np.broadcast_to(source, a.shape), start + np.arange(6), 1)
-        np.testing.assert_array_equal(NUMPY.window(source, start, 6), expected)
+        window = NUMPY.window(source, start, 6)
+        np.testing.assert_array_equal(window, expected)
+        window[:] = np.nan  # a copy: the source stays as it was
+        assert not np.isnan(source).any()
         got = TORCH64.window(torch.from_numpy(source), torch.from_numpy(start), 6).numpy()
         np.testing.assert_array_equal(got, expected)
+    column = a[:, 2:3]  # one value per row, broadcast against the rows
+    np.testing.assert_array_equal(a - NUMPY.per_row(column), a - column)
+    np.testing.assert_array_equal(NUMPY.per_row(column) * a[:, :4], column * a[:, :4])
     np.testing.assert_array_equal(NUMPY.running_max(a), np.maximum.accumulate(a, axis=1))
     np.testing.assert_array_equal(
         TORCH64.running_max(torch.from_numpy(a)).numpy(), np.maximum.accumulate(a, axis=1)

@@ -259,3 +259,25 @@ def test_lidar_matches_mujoco_ray_casting_and_ignores_the_body():
     # the body is never seen: rays from inside the hull still reach the ground below
     obs, _ = env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})
     assert obs[-10] == pytest.approx((env.data.xpos[env.bound.root_id][2]) / (160 / 30), abs=1e-3)
+
+
+def test_height_line_lidar_reads_flat_ground_alone_and_in_a_batch():
+    """Over flat ground h below, ray i (angle t_i from the vertical) reads h / cos(t_i) as a
+    fraction of the range, or 1 where that is out of range (also when the ground falls away
+    out of range: the line through the last segment in reach is no hit); the same row in a
+    batch of three."""
+    env = make().unwrapped
+    env.reset(seed=0, options={"task": {"stump_height": 0.0, "obstacle_spacing": 6.0}})
+    lidar, grid = env.rules.lidar, env.arena.grid
+    angles = 1.5 * np.arange(10) / 10
+    heights = lidar.batch_heights(3)
+    beyond = grid.x - (10.0 + 160 / 30)
+    heights[2, : grid.ncol] = np.where(beyond > 0.0, -2.0 * beyond, 0.0)
+    origins = np.array([[10.0, 0.0, h] for h in (1.0, 5.0, 5.5)])
+    out = lidar.read_batch(heights, origins)
+    for row, h in zip(out, origins[:, 2]):
+        expected = np.minimum(h / np.cos(angles) / (160 / 30), 1.0)
+        np.testing.assert_allclose(row, expected, rtol=1e-12)
+    for i in range(3):
+        alone = lidar.read_batch(heights[i : i + 1], origins[i : i + 1])
+        assert np.array_equal(alone, out[i : i + 1])
