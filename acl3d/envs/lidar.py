@@ -103,7 +103,7 @@ class HeightLineLidar(Lidar):
     """
 
     reads_height_rows = True
-    _constants = ("_x_padded", "_slope", "_inv_sin", "_x_min", "_cell", "_range", "_inv_range")
+    _constants = ("_x_padded", "_slope", "_inv_sin", "_x_min", "_cell", "_inv_range")
     _constants += ("_zero", "_one", "_inf")  # (0-d arrays, see the constructor)
     _indices = ("_slanted", "_vertical", "_first_col", "_last_col", "_next")
 
@@ -116,6 +116,11 @@ class HeightLineLidar(Lidar):
             raise ValueError(
                 f"HeightLineLidar casts forward/downward rays only; lidar type {kind!r} looks back"
             )
+        # a distance d reads min(d * inv_range, 1) (nan: 1), which is 1 exactly beyond the range
+        # when the rounded products order as the distances do at the range (as at 160/30)
+        inv, above = self._inv_range, np.nextafter(ray_range, np.inf)
+        if not ray_range * inv <= 1.0 <= above * inv:
+            raise ValueError(f"ray_range {ray_range!r}: d * (1 / range) crosses 1 off the range")
         self.arena = arena
         self._x_min, self._cell, self._ncol = arena.grid.x_min, arena.grid.cell, arena.grid.ncol
         vertical = sin <= 1e-12
@@ -133,8 +138,8 @@ class HeightLineLidar(Lidar):
         )
         self._terrain_geom = arena.model.geom("terrain").id
         # the step's scalars as 0-d arrays: numpy's ufuncs take them faster than Python floats
-        scalars = (self._x_min, self._cell, ray_range, self._inv_range, 0.0, 1.0, np.inf)
-        self._x_min, self._cell, self._range, self._inv_range, self._zero, self._one, self._inf = (
+        scalars = (self._x_min, self._cell, self._inv_range, 0.0, 1.0, np.inf)
+        self._x_min, self._cell, self._inv_range, self._zero, self._one, self._inf = (
             np.asarray(v, dtype=np.float64) for v in scalars
         )
         self._first_col, self._last_col, self._next = (
@@ -205,5 +210,5 @@ class HeightLineLidar(Lidar):
             dist = ops.full((len(heights), self.nb_rays), 0.0)
             dist[:, self._slanted] = (x_hit - x0) * self._inv_sin
         dist[:, self._vertical] = z0 - h0
-        out = xp.where(dist <= self._range, dist * self._inv_range, self._one)
+        out = xp.fmin(dist * self._inv_range, self._one)  # nan (no hit) and out of range: 1
         return xp.where(z0 <= h0, self._zero, out)  # the origin is inside the terrain
