@@ -87,6 +87,7 @@ class PhysicsState:
         self.controls = data.ctrl[None]
         self.warnings = data.warning.number[None]
         self._fields: dict[str, np.ndarray] = {}
+        self._force_range = model.actuator_forcerange  # bound once: each read makes a new view
 
     def field(self, name: str) -> np.ndarray:
         """A live (1, ...) view of the MjData field `name`."""
@@ -97,7 +98,7 @@ class PhysicsState:
 
     def set_force_caps(self, index, ranges: np.ndarray) -> None:
         """Force ranges (1, len(index), 2) of actuators `index`, in this env's model."""
-        self.model.actuator_forcerange[index] = ranges[0]
+        self._force_range[index] = ranges[0]
 
     def row_data(self, i: int) -> mujoco.MjData:
         """The one env's MjData (the backend interface's per-simulation access)."""

@@ -64,14 +64,16 @@ class BatchPhysics:
         self._fields = {name: self.batch.bind(name) for name in fields}
         self.field_names = tuple(self._fields)
         self._row_data: list[RowData | None] = [None] * self.n
+        # the models' force ranges, bound once (each attribute read makes a new array view)
+        self._force_ranges = [model.actuator_forcerange for model in self.models]
 
     def field(self, name: str) -> np.ndarray:
         """Live (N, ...) array of an MjData field named in the constructor's `fields`."""
         return self._fields[name]
 
     def set_force_caps(self, index, ranges: np.ndarray) -> None:
-        for model, r in zip(self.models, ranges):
-            model.actuator_forcerange[index] = r
+        for force_range, r in zip(self._force_ranges, ranges):
+            force_range[index] = r
 
     def step(self) -> None:
         """`nstep` substeps of every simulation, remembering the rows they started from."""
