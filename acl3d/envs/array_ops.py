@@ -115,13 +115,14 @@ class NumpyOps(ArrayOps):
     xp = np
 
     def __init__(self):
-        self._rows: dict[int, np.ndarray] = {}
+        self._row_start: dict[tuple[int, int], np.ndarray] = {}
         self._cols: dict[int, np.ndarray] = {}
 
-    def _row_index(self, n: int) -> np.ndarray:
-        if n not in self._rows:
-            self._rows[n] = np.arange(n)[:, None]
-        return self._rows[n]
+    def _row_starts(self, n: int, width: int) -> np.ndarray:
+        """(n, 1): where each row of an (n, width) array starts in the flat array."""
+        if (n, width) not in self._row_start:
+            self._row_start[n, width] = np.arange(n)[:, None] * width
+        return self._row_start[n, width]
 
     def _columns(self, width: int) -> np.ndarray:
         if width not in self._cols:
@@ -173,7 +174,7 @@ class NumpyOps(ArrayOps):
         n, v = len(rows), len(values)
         if n == 1:
             return rows[0].searchsorted(values)[None]
-        reached = values.searchsorted(rows, side="right") + self._row_index(n) * (v + 1)
+        reached = values.searchsorted(rows, side="right") + self._row_starts(n, v + 1)
         tally = np.bincount(reached.ravel(), minlength=n * (v + 1)).reshape(n, v + 1)
         return tally.cumsum(axis=1)[:, :-1]
 
@@ -183,7 +184,7 @@ class NumpyOps(ArrayOps):
         n, width = a.shape
         if n == 1:
             return a.reshape(-1)[index]
-        return a.reshape(-1)[index + self._row_index(n) * width]
+        return a.reshape(-1)[index + self._row_starts(n, width)]
 
     def window(self, a, start, width: int):
         """One env: a slice's copy (a third of an index's time); N envs: `gather`."""
