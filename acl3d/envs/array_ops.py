@@ -18,6 +18,10 @@ the functions both spell and compute alike (`where`, `abs`, `sign`, `floor`, `sq
   (a host check, cheap on the CPU), where torch keeps every row and masks (no host sync on a
   GPU); `scatter_min` reduces per-pair values back to rows.
 * where arrays live and in which precision (`asarray`, `index`, `full`).
+* `per_row`: (N, 1) values as an operand against (N, M) arrays. numpy's ufuncs take operands of
+  one shape, or 0-d ones, at about a third of the cost of broadcasting a (1, 1) array or
+  converting a Python float, so numpy gives one row's as a 0-d view, and the rules keep their
+  constants as (1, ·) rows and 0-d arrays (one env's arrays are (1, ·)).
 
 Why not the Array API standard through `array-api-compat`: its torch namespace wraps `minimum`,
 `maximum`, `where` and others to promote Python scalars, which made the tracks' rules on torch
