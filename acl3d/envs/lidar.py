@@ -189,10 +189,9 @@ class HeightLineLidar(Lidar):
         frac = (x0 - xs[:, 0:1]) / self._cell
         h0 = hs[:, 0:1] + frac * (hs[:, 1:2] - hs[:, 0:1])  # the terrain right under the origin
         # the chain from the origin's foot (x0, h0) through the columns past it, ending in a
-        # point at infinity: a ray that crosses no segment within reach meets the last one,
-        # whose slope inf / inf is nan, so its distance is nan and it reads 1 (no hit)
-        xs[:, 0:1], hs[:, 0:1] = x0, h0
-        xs[:, -1:], hs[:, -1:] = self._inf, self._inf
+        # point infinitely high: a ray that crosses no segment within reach meets the last one,
+        # of slope inf, at nan, so its distance is nan and it reads 1 (no hit)
+        xs[:, 0:1], hs[:, 0:1], hs[:, -1:] = x0, h0, self._inf
         x0, z0 = ops.per_row(x0), ops.per_row(z0)  # operands against (N, columns or rays)
         with ops.quiet():  # a column at x0 itself, or a segment parallel to a ray: no hit there
             rise = (hs[:, 1:-1] - z0) / (xs[:, 1:-1] - x0)
