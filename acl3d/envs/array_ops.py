@@ -236,6 +236,7 @@ class TorchOps(ArrayOps):
 
         self.xp = torch
         self.device, self.dtype = torch.device(device), dtype
+        self._cols: dict[int, object] = {}  # width -> arange on the device, made once
 
     def asarray(self, values):
         return self.xp.as_tensor(np.asarray(values, dtype=np.float64)).to(self.device, self.dtype)
@@ -268,7 +269,9 @@ class TorchOps(ArrayOps):
         return a.gather(1, index)
 
     def window(self, a, start, width: int):
-        cols = start + self.xp.arange(width, device=self.device)
+        if width not in self._cols:
+            self._cols[width] = self.xp.arange(width, device=self.device)
+        cols = start + self._cols[width]
         return a[cols] if a.ndim == 1 else a.gather(1, cols)
 
     def per_row(self, a):
