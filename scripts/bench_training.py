@@ -237,31 +237,38 @@ def main() -> None:
 
     overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.rsl_param)}
     rows, rsl, env_only = [], {}, {}
-    for _ in range(args.repeats):
+    rounds = []  # per repeat: ({rsl worlds: steps/s}, {SB3 PPO envs: steps/s}), measured together
+    cells = {}
+    for student in args.students:
+        cells[student] = [("batched", n) for n in args.batched_envs]
+        if args.old_envs:
+            cells[student] += [("old", args.old_envs), ("walker2d", args.old_envs)]
+    best = {student: {cell: 0.0 for cell in cells[student]} for student in args.students}
+    share = {student: {n: 1.0 for n in args.batched_envs} for student in args.students}
+    for _ in range(args.repeats):  # every cell once per round, so load changes hit all alike
         for n in args.env_only:
             sps = measure_env(n, args.ppo_steps, args.teacher)
             env_only[n] = max(env_only.get(n, 0.0), sps)
             print(f"  tensor worlds alone x{n}: {sps:.0f} steps/s", flush=True)
+        this_round = ({}, {})
         for n in args.rsl_envs:
             sps, shares = measure_rsl(n, args.ppo_steps, args.teacher, args.preset, overrides)
             rsl[n] = max(rsl.get(n, 0.0), sps)
+            this_round[0][n] = sps
             split = ", ".join(f"{k} {100 * v:.0f}%" for k, v in shares.items())
             print(f"  rsl-ppo tensor worlds x{n}: {sps:.0f} steps/s ({split})", flush=True)
-    for student in args.students:
-        steps = args.ppo_steps if student == "ppo" else args.sac_steps
-        cells = [("batched", n) for n in args.batched_envs]
-        if args.old_envs:
-            cells += [("old", args.old_envs), ("walker2d", args.old_envs)]
-        best = {cell: 0.0 for cell in cells}
-        share = {n: 1.0 for n in args.batched_envs}
-        for _ in range(args.repeats):
-            for kind, n in cells:  # interleaved, so load changes hit every cell alike
+        for student in args.students:
+            steps = args.ppo_steps if student == "ppo" else args.sac_steps
+            for kind, n in cells[student]:
                 sps, teacher_share = measure(kind, student, n, steps, args.teacher, args.preset)
-                best[(kind, n)] = max(best[(kind, n)], sps)
+                best[student][(kind, n)] = max(best[student][(kind, n)], sps)
                 if kind == "batched":
-                    share[n] = min(share[n], teacher_share)
+                    share[student][n] = min(share[student][n], teacher_share)
+                    if student == "ppo":
+                        this_round[1][n] = sps
                 print(f"  {student} {kind} x{n}: {sps:.0f} steps/s", flush=True)
-        rows.append((student, best, share))
+        rounds.append(this_round)
+    rows = [(student, best[student], share[student]) for student in args.students]
 
     print()
     print(
@@ -301,6 +308,12 @@ def main() -> None:
         for n, sps in rsl.items():
             ratio = f"{sps / sb3[0]:.2f}x (SB3 at {sb3[1]} envs)" if sb3 else "-"
             print(f"| {n} | {sps:.0f} | {ratio} |")
+        if sb3:
+            print()
+            print("per round, rsl-ppo / the round's best SB3 PPO batched (measured back to back)")
+            for n in args.rsl_envs:
+                ratios = [r[n] / max(s_.values()) for r, s_ in rounds]
+                print(f"| {n} | " + ", ".join(f"{x:.2f}x" for x in ratios) + " |")
     if env_only:
         print()
         print("tensor worlds alone (uniform random actions, no learner), steps/s")
