@@ -118,7 +118,7 @@ class LeanPPO(PPO):
         )  # fmt: skip
         old_log_prob, advantages = old_log_prob.squeeze(-1), advantages.squeeze(-1)
         distribution, self.threads = self.actor.distribution, torch.get_num_threads()
-        totals = torch.zeros(3, dtype=torch.float64)
+        totals = torch.zeros(3, dtype=torch.float64, device=st.device)
         for _ in range(epochs):
             for start in range(0, batches * size, size):
                 b = slice(start, start + size)
