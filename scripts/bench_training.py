@@ -13,7 +13,9 @@ physics on one thread per core; sub-envs pull their tasks from the teacher at re
 path (`--old-envs` SubprocVecEnv workers, forkserver, tasks pushed to worker queues); Walker2d-v5
 on the same SubprocVecEnv setting. "teacher" is the share of the batched run's wall time spent in
 the teacher (sampling tasks, recording episodes). Ratios compare cells measured in this run; on
-shared machines repeat with --repeats and read the best.
+shared machines repeat with --repeats and read the best. Each repeat is a round of every cell
+(rsl-ppo first, then the SB3 cells), and rsl-ppo's ratio to the round's best SB3 PPO cell is
+printed per round: a host whose speed drifts shows as spread there.
 
 `--rsl-envs`: the torch-native rsl-ppo student (its own loop on `CpuTensorVectorEnv`, the same
 teacher feeding the worlds) at these world counts, with its `--preset`-named preset: whole
