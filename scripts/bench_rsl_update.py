@@ -25,10 +25,6 @@ from rsl_rl.storage import RolloutStorage
 from acl3d.training.torch_student import presets, rsl_ppo
 from acl3d.training.torch_student.lean_ppo import LeanPPO
 
-KEYS = ("num_learning_epochs", "num_mini_batches", "clip_param", "gamma", "lam",
-        "value_loss_coef", "entropy_coef", "learning_rate", "max_grad_norm",
-        "use_clipped_value_loss", "schedule", "desired_kl")  # fmt: skip
-
 
 def build(params: dict, worlds: int, obs_size: int, act_size: int, variant: str):
     torch.manual_seed(0)
@@ -36,7 +32,7 @@ def build(params: dict, worlds: int, obs_size: int, act_size: int, variant: str)
             **{k: params[k] for k in ("hidden_dims", "activation", "init_noise_std")}}  # fmt: skip
     actor, critic, obs = rsl_ppo._models(spec, worlds, "cpu")
     storage = RolloutStorage("rl", worlds, params["num_steps_per_env"], obs, [act_size], "cpu")
-    settings = {k: params[k] for k in KEYS}
+    settings = rsl_ppo.algorithm_settings(params)
     if variant == "rsl_rl":
         alg = PPO(actor, critic, storage, device="cpu", **settings)
     else:

@@ -238,7 +238,7 @@ def main() -> None:
         return
 
     overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.rsl_param)}
-    rows, rsl, env_only = [], {}, {}
+    rsl, env_only = {}, {}
     rounds = []  # per repeat: ({rsl worlds: steps/s}, {SB3 PPO envs: steps/s}), measured together
     cells = {}
     for student in args.students:

@@ -47,7 +47,6 @@ class LeanPPO(PPO):
         self.critic_thread = (
             torch.device(self.device).type == "cpu" if critic_thread is None else critic_thread
         )
-        self.threads = torch.get_num_threads()
         if self.rnd or self.symmetry or self.is_multi_gpu or self.use_mixed_precision:
             raise ValueError("LeanPPO covers plain PPO: no RND, symmetry, multi-GPU or AMP")
         if self.normalize_advantage_per_mini_batch or actor.is_recurrent or critic.is_recurrent:
@@ -117,7 +116,7 @@ class LeanPPO(PPO):
                       *st.distribution_params)
         )  # fmt: skip
         old_log_prob, advantages = old_log_prob.squeeze(-1), advantages.squeeze(-1)
-        distribution, self.threads = self.actor.distribution, torch.get_num_threads()
+        distribution, threads = self.actor.distribution, torch.get_num_threads()
         totals = torch.zeros(3, dtype=torch.float64, device=st.device)
         for _ in range(epochs):
             for start in range(0, batches * size, size):
@@ -126,7 +125,7 @@ class LeanPPO(PPO):
                     p.grad = None
                 critic = (obs_critic[b], values[b], returns[b])
                 if self.critic_thread:
-                    critic_loss = _critic_thread().submit(self._critic_step, *critic)
+                    critic_loss = _critic_thread().submit(self._critic_step, *critic, threads)
                 distribution.update(self.actor.mlp(obs_actor[b]))
                 distribution.sample()  # rsl_rl's forward draws one; the generator must agree
                 log_prob = distribution.log_prob(actions[b])
@@ -154,12 +153,13 @@ class LeanPPO(PPO):
         value, surrogate, entropy = (totals / (epochs * batches)).tolist()
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
 
-    def _critic_step(self, obs: torch.Tensor, values: torch.Tensor, returns: torch.Tensor):
+    def _critic_step(self, obs, values, returns, threads: int | None = None) -> torch.Tensor:
         """The critic's share of a minibatch: its value loss, backward pass and clipping. The
         networks share no parameter, so this backward pass and the actor's give the gradients
-        of rsl_rl's summed loss, bit for bit."""
-        if torch.get_num_threads() != self.threads:  # a fresh thread starts at the core count
-            torch.set_num_threads(self.threads)
+        of rsl_rl's summed loss, bit for bit. On the worker thread, `threads` is the caller's
+        torch thread count (a fresh thread starts at the core count)."""
+        if threads is not None and torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
         value = self.critic.mlp(obs)
         if self.use_clipped_value_loss:
             clipped = values + (value - values).clamp(-self.clip_param, self.clip_param)

@@ -28,6 +28,15 @@ with optional_dependency("the rsl-ppo student"):
 
 NAME = "rsl-ppo"
 _GROUPS = {"actor": ["policy"], "critic": ["policy"]}
+# the preset's keys that rsl_rl's PPO takes (the rest build the networks and the rollout)
+ALGORITHM_KEYS = ("num_learning_epochs", "num_mini_batches", "clip_param", "gamma", "lam",
+                  "value_loss_coef", "entropy_coef", "learning_rate", "max_grad_norm",
+                  "use_clipped_value_loss", "schedule", "desired_kl")  # fmt: skip
+
+
+def algorithm_settings(params: dict) -> dict:
+    """The keyword arguments of rsl_rl's `PPO` in a preset's `params`."""
+    return {k: params[k] for k in ALGORITHM_KEYS}
 
 
 def _models(spec: dict, num_envs: int, device) -> tuple[MLPModel, MLPModel, TensorDict]:
@@ -120,11 +129,8 @@ class RslPPO:
             "rl", self.num_envs, params["num_steps_per_env"], obs, [self.spec["action_size"]],
             str(self.device),
         )  # fmt: skip
-        keys = ("num_learning_epochs", "num_mini_batches", "clip_param", "gamma", "lam",
-                "value_loss_coef", "entropy_coef", "learning_rate", "max_grad_norm",
-                "use_clipped_value_loss", "schedule", "desired_kl")  # fmt: skip
         self.alg = LeanPPO(
-            actor, critic, storage, device=str(self.device), **{k: params[k] for k in keys}
+            actor, critic, storage, device=str(self.device), **algorithm_settings(params)
         )
         self.alg.train_mode()
 
