@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 pytest.importorskip("rsl_rl")
 
@@ -199,3 +200,19 @@ def test_presets_and_checks():
         presets.hyperparameters("fast", 16, {"n_steps": 5})
     with pytest.raises(ValueError, match=r"hidden_dims"):
         presets.hyperparameters("fast", 16, {"hidden_dims": [0]})
+
+
+def test_each_student_gets_its_own_default_number_of_envs(tmp_path):
+    """16 envs fill 2 cores for SB3; rsl-ppo trains fastest on 64 CPU worlds and fills a GPU
+    from 4,096. A run records the number, so a later change of default never changes it."""
+    assert TrainConfig().effective_n_envs == 16
+    assert TrainConfig(student="rsl-ppo").effective_n_envs == 64
+    assert TrainConfig(student="rsl-ppo", device="cuda").effective_n_envs == 4096
+    assert TrainConfig(student="rsl-ppo", n_envs=8).effective_n_envs == 8
+    assert TrainConfig(student="sac", device="cuda").effective_n_envs == 16
+    validate(TrainConfig(student="rsl-ppo"))
+    out = tmp_path / "run"
+    options = ["--steps", "128", "--nb-test-episodes", "4", "--no-progress", "--quiet"]
+    limits = ["--env-kwarg", "max_episode_steps=20", "--student-param", "num_steps_per_env=2"]
+    assert main(["train", "--student", "rsl-ppo", "--out", str(out), *options, *limits]) == 0
+    assert yaml.safe_load((out / "config.yaml").read_text())["config"]["n_envs"] == 64

@@ -23,7 +23,13 @@ from acl3d.cli.test_set_options import add_test_set_arguments
 from acl3d.envs import ENV_NAMES
 from acl3d.teachers import TEACHERS
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
-from acl3d.training.config import BENCHMARK, DEFAULT_N_ENVS, TrainConfig
+from acl3d.training.config import (
+    BENCHMARK,
+    DEFAULT_CPU_WORLDS,
+    DEFAULT_GPU_WORLDS,
+    DEFAULT_N_ENVS,
+    TrainConfig,
+)
 
 _DEFAULTS = TrainConfig()
 
@@ -79,7 +85,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--n-envs",
         type=int,
-        help=f"parallel training environments (default {DEFAULT_N_ENVS})",
+        help=f"parallel training environments (default: {DEFAULT_N_ENVS} for an SB3 student; "
+        f"rsl-ppo: {DEFAULT_CPU_WORLDS} worlds on the CPU, {DEFAULT_GPU_WORLDS} on a GPU)",
     )
     g.add_argument("--seed", type=int, help="seed of teacher, student and environments (default 0)")
     g.add_argument(

@@ -18,7 +18,12 @@ from acl3d import validation as check
 from acl3d.teachers.expert_knowledge import LEVELS as EXPERT_KNOWLEDGE
 from acl3d.teachers.test_sets import MAX_TASKS as MAX_TEST_TASKS
 
-DEFAULT_N_ENVS = 16  # training envs when none are asked for: one batched env of 16 fills 2 cores
+# Training envs when none are asked for (`TrainConfig.effective_n_envs`): an SB3 student's
+# batched env of 16 fills 2 cores; a torch-native student trains fastest on 64 CPU worlds (its
+# `fast` preset: 64 x 128-step rollouts, docs/benchmarks.md) and fills a GPU from 4,096.
+DEFAULT_N_ENVS = 16
+DEFAULT_CPU_WORLDS = 64
+DEFAULT_GPU_WORLDS = 4096
 TEACHMYAGENT_EVAL_EVERY = 500_000
 MIN_DEFAULT_EVAL_EVERY = 50_000
 MANY_WORLD_EVALUATIONS = 10  # default evaluations of a run on the many-world simulation
@@ -59,7 +64,7 @@ class TrainConfig:
     student: str = "ppo"
     preset: str = "fast"
     steps: int = 1_200_000  # the quickstart: >= 10% of its test tasks in ~3 min on 2 cores
-    n_envs: int = DEFAULT_N_ENVS
+    n_envs: int | None = None  # None: the student's default (`effective_n_envs`)
     seed: int = 0
     out: str | None = None
     expert_knowledge: str = "high"
@@ -142,8 +147,21 @@ class TrainConfig:
         return MANY_WORLD_EVALUATIONS if uses_many_worlds(self) else 1
 
     @property
+    def effective_n_envs(self) -> int:
+        """`n_envs`, or the student's default: 16 envs for an SB3 student, 64 worlds for a
+        torch-native one on the CPU, 4,096 on the many-world simulation. `train()` records the
+        number in the run's config, so a later change of default never changes a run."""
+        from acl3d.training.students import is_torch_native
+
+        if self.n_envs is not None:
+            return int(self.n_envs)
+        if uses_many_worlds(self):
+            return DEFAULT_GPU_WORLDS
+        return DEFAULT_CPU_WORLDS if is_torch_native(self.student) else DEFAULT_N_ENVS
+
+    @property
     def effective_eval_envs(self) -> int:
-        return int(self.eval_envs or self.n_envs)
+        return int(self.eval_envs or self.effective_n_envs)
 
     @property
     def eval_seed(self) -> int:
@@ -215,7 +233,7 @@ _COUNTS = (
     "eval_together", "checkpoint_every", "buffer_size", "reset_student_every", "periodical_samples_every", "seed",
     "envs_per_worker",
 )  # fmt: skip
-_REQUIRED_COUNTS = ("steps", "n_envs", "nb_test_episodes", "torch_threads", "seed")
+_REQUIRED_COUNTS = ("steps", "nb_test_episodes", "torch_threads", "seed")
 _MAY_BE_ZERO = ("reset_student_every", "periodical_samples_every", "seed")
 _FLAGS = (
     "shuffle_dimensions",
@@ -264,9 +282,10 @@ def validate(config: TrainConfig, *, on_this_machine: bool = True) -> None:
     for name in ("out", "test_set"):
         if getattr(config, name) is not None:
             check.path(name, getattr(config, name))
-    if config.envs_per_worker is not None and config.envs_per_worker > config.n_envs:
+    n_envs = config.effective_n_envs
+    if config.envs_per_worker is not None and config.envs_per_worker > n_envs:
         raise check.fail(
-            "envs_per_worker", config.envs_per_worker, f"None or an integer in [1, {config.n_envs}]"
+            "envs_per_worker", config.envs_per_worker, f"None or an integer in [1, {n_envs}]"
         )
     if config.reset_student_every and config.reset_student_every >= config.steps:
         raise ValueError(
@@ -291,7 +310,9 @@ def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> 
     from acl3d.envs.batched import MAX_ENVS
     from acl3d.sim.worlds import MAX_WORLDS
 
-    check.integer("n_envs", config.n_envs, 1, MAX_WORLDS if uses_many_worlds(config) else MAX_ENVS)
+    check.integer(
+        "n_envs", config.effective_n_envs, 1, MAX_WORLDS if uses_many_worlds(config) else MAX_ENVS
+    )
     if config.eval_envs is not None:
         check.integer("eval_envs", config.eval_envs, 1, MAX_ENVS)
     if config.eval_together is not None:
@@ -303,7 +324,10 @@ def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> 
     cores = cpu_cores()
     check.integer("torch_threads", config.torch_threads, 1, cores)
     most = max(MIN_WORKER_PROCESSES, 4 * cores)
-    for name, n_envs in (("n_envs", config.n_envs), ("eval_envs", config.effective_eval_envs)):
+    for name, n_envs in (
+        ("n_envs", config.effective_n_envs),
+        ("eval_envs", config.effective_eval_envs),
+    ):
         workers = worker_processes(config, n_envs)
         if workers > most:
             raise check.fail(

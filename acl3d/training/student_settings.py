@@ -18,7 +18,9 @@ def student_params(config: TrainConfig) -> dict:
                 "(other algorithms: student_params={'buffer_size': ...})"
             )
         overrides["buffer_size"] = config.buffer_size
-    return students.hyperparameters(config.student, config.preset, config.n_envs, overrides)
+    return students.hyperparameters(
+        config.student, config.preset, config.effective_n_envs, overrides
+    )
 
 
 def steps_per_collection(student: str, params: dict, n_envs: int) -> int:

@@ -78,6 +78,7 @@ def train(
         if not config.out:
             raise ValueError("out (the run directory) is required")
         validate(config)
+        config = dataclasses.replace(config, n_envs=config.effective_n_envs)  # the run records it
         run = RunDir(config.out)
         run.check_new(overwrite)
         return _start(config, run, None, user_callbacks, overwrite)

@@ -64,8 +64,10 @@ class TorchRun:
             env.close()
         if "step_rewards" in self.controller.needs:
             raise ValueError(
-                f"teacher={config.teacher!r} needs every step's reward; valid with the rsl-ppo "
-                "student: teachers that learn from episode results (alp-gmm, random, riac, ...)"
+                f"teacher={config.teacher!r} needs every step's reward, which the "
+                f"{config.student!r} student does not pass; train it with an SB3 student "
+                "(student ppo or sac), or pick a teacher that learns from episode results "
+                "(alp-gmm, random, riac, ...)"
             )
         self.params = student_params(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
