@@ -32,7 +32,8 @@ def _train_options(*argv: str) -> dict:
 
 def test_the_defaults_are_the_quickstart_and_the_benchmark_is_one_flag_away():
     config = TrainConfig.from_dict(_train_options())
-    assert (config.teacher, config.student, config.preset) == ("alp-gmm", "ppo", "fast")
+    assert (config.teacher, config.student, config.preset) == ("alp-gmm", "rsl-ppo", "fast")
+    assert (config.steps, config.effective_n_envs) == (2_000_000, 64)
     assert (config.expert_knowledge, config.nb_test_episodes) == ("high", 25)
     sac = TrainConfig.from_dict(_train_options("--benchmark", "sac"))
     assert {k: getattr(sac, k) for k in BENCHMARK["sac"]} == BENCHMARK["sac"]
@@ -50,10 +51,11 @@ def test_the_defaults_are_the_quickstart_and_the_benchmark_is_one_flag_away():
 def test_a_run_without_out_gets_a_new_directory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     first = default_run_dir({})
-    assert first == "runs/alp-gmm-ppo-seed0"
+    assert first == "runs/alp-gmm-rsl-ppo-seed0"
     (tmp_path / first).mkdir(parents=True)
-    assert default_run_dir({}) == "runs/alp-gmm-ppo-seed0-2"
-    assert default_run_dir({"teacher": "riac", "seed": 3}) == "runs/riac-ppo-seed3"
+    assert default_run_dir({}) == "runs/alp-gmm-rsl-ppo-seed0-2"
+    assert default_run_dir({"teacher": "riac", "seed": 3}) == "runs/riac-rsl-ppo-seed3"
+    assert default_run_dir({"student": "sac"}) == "runs/alp-gmm-sac-seed0"
 
 
 def _commands(parser: argparse.ArgumentParser, name: str = "acl3d"):

@@ -205,8 +205,8 @@ def test_presets_and_checks():
 def test_each_student_gets_its_own_default_number_of_envs(tmp_path):
     """16 envs fill 2 cores for SB3; rsl-ppo trains fastest on 64 CPU worlds and fills a GPU
     from 4,096. A run records the number, so a later change of default never changes it."""
-    assert TrainConfig().effective_n_envs == 16
-    assert TrainConfig(student="rsl-ppo").effective_n_envs == 64
+    assert TrainConfig(student="ppo").effective_n_envs == 16
+    assert TrainConfig().effective_n_envs == 64
     assert TrainConfig(student="rsl-ppo", device="cuda").effective_n_envs == 4096
     assert TrainConfig(student="rsl-ppo", n_envs=8).effective_n_envs == 8
     assert TrainConfig(student="sac", device="cuda").effective_n_envs == 16

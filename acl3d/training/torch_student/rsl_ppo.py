@@ -1,6 +1,6 @@
 """rsl_rl's PPO as acl3d's torch-native student: rollouts, updates and state stay on one device.
 
-rsl_rl (`pip install acl3d[rsl]`) provides the algorithm (`rsl_rl.algorithms.PPO`), the
+rsl_rl (`pip install acl3d[train]`) provides the algorithm (`rsl_rl.algorithms.PPO`), the
 actor-critic MLPs with empirical observation normalisation (`rsl_rl.models.MLPModel`) and the
 rollout storage. This module adds what acl3d's runs need around them: clipping actions to the
 action bounds, bootstrapping the value of an episode cut by the time limit from its final
