@@ -2,7 +2,7 @@
 
     python scripts/examples/custom_teacher.py --steps 20000 --out runs/my_teacher
 
-Needs `pip install "acl3d[train]"` (Stable-Baselines3 and torch, for `acl3d train`).
+Needs `pip install "acl3d[train]"` (torch and the students, for `acl3d train`).
 
 `EasyFirst` proposes uniform tasks, but only among the easiest `fraction` of each dimension
 until the student's recent episodes succeed often enough; then the fraction grows. It declares
