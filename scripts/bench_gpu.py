@@ -5,6 +5,7 @@
     python scripts/bench_gpu.py --first-step                           # a new process's start
 
     python scripts/bench_gpu.py --env terrain3d --body big_quadru      # another family
+    python scripts/bench_gpu.py --env terrain3d --body big_quadru --constraint-rows 0 384 256
 
 Per world count, in one run on one device (random actions in [-1, 1], the env's default body):
 * raw physics: `WarpSimulation.step` alone (random controls, no rules, no resets, the worlds'
@@ -15,7 +16,9 @@ Per world count, in one run on one device (random actions in [-1, 1], the env's 
 * resets' host share: the fraction of the env's time spent in the batched resets (terrain
   generation and upload included), timed with device synchronisation in a separate pass.
 Each cell runs `--warmup` steps first (graph capture, kernel loading). `--first-step` times a
-new process from import to its first env step (the kernel cache's effect).
+new process from import to its first env step (the kernel cache's effect). `--constraint-rows`
+repeats every size with each number of constraint rows reserved per world (0: MuJoCo Warp's
+estimate), in rounds, and counts the worlds that needed more ("overflows").
 """
 
 from __future__ import annotations
@@ -44,8 +47,11 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def make_env(n: int, device: str, name: str, body: str | None) -> ManyWorlds:
-    env = many_worlds(name, n, device, **({} if body is None else {"body": body}))
+def make_env(
+    n: int, device: str, name: str, body: str | None, rows: int | None = None
+) -> ManyWorlds:
+    kwargs = {} if body is None else {"body": body}
+    env = many_worlds(name, n, device, constraint_rows=rows, **kwargs)
     if name in TASKS:
         env.tasks[:] = env.task_space.to_vector(TASKS[name])
     env.reset(seed=0)
@@ -132,28 +138,38 @@ def main() -> None:
         "--env", default="stump-tracks", help="stump-tracks, hexagon-tracks, parkour, terrain3d"
     )
     p.add_argument("--body", help="default: the env's")
+    p.add_argument(
+        "--constraint-rows", type=int, nargs="+", default=[0], metavar="ROWS",
+        help="constraint rows reserved per world, each measured in turn (0: MuJoCo Warp's estimate)",
+    )  # fmt: skip
+    p.add_argument("--rounds", type=int, default=1, help="repeat the cells in interleaved rounds")
     p.add_argument("--first-step", action="store_true", help="also time a new process's start")
     p.add_argument("--json", help="write the rows to this file too")
     a = p.parse_args()
     rows = []
     print(f"{a.env}, {a.body or 'its default body'}, device {a.device}, {a.steps} timed steps")
-    print(f"{'worlds':>8} {'raw physics/s':>14} {'env steps/s':>12} {'ratio':>6} "
-          f"{'resets/step':>11} {'reset share':>11}")  # fmt: skip
-    for n in a.sizes:
-        t0 = time.perf_counter()
-        env = make_env(n, a.device, a.env, a.body)
-        build = time.perf_counter() - t0
-        raw = raw_rate(env, a.steps, a.warmup)
-        env.reset(seed=0)
-        rate, resets = env_rate(env, a.steps, a.warmup)
-        share = reset_share(env, max(a.steps // 4, 10))
-        row = dict(worlds=n, raw=raw, env=rate, ratio=rate / raw, resets_per_step=resets,
-                   reset_share=share, build_s=build, device=a.device, env_name=a.env)  # fmt: skip
-        rows.append(row)
-        print(f"{n:>8} {raw:>14,.0f} {rate:>12,.0f} {rate / raw:>6.2f} {resets:>11.1f} "
-              f"{share:>11.1%}   (build + first reset {build:.1f} s)", flush=True)  # fmt: skip
-        env.close()
-        del env
+    print(f"{'worlds':>8} {'rows':>5} {'raw physics/s':>14} {'env steps/s':>12} {'ratio':>6} "
+          f"{'resets/step':>11} {'reset share':>11} {'overflows':>9}")  # fmt: skip
+    cells = [(n, rows_) for n in a.sizes for rows_ in a.constraint_rows]
+    for _ in range(a.rounds):
+        for n, reserved in cells:
+            t0 = time.perf_counter()
+            env = make_env(n, a.device, a.env, a.body, reserved or None)
+            build = time.perf_counter() - t0
+            raw = raw_rate(env, a.steps, a.warmup)
+            env.reset(seed=0)
+            rate, resets = env_rate(env, a.steps, a.warmup)
+            share = reset_share(env, max(a.steps // 4, 10))
+            overflows = int(env.sim.constraint_overflows().sum())
+            row = dict(worlds=n, constraint_rows=env.sim.constraint_rows, raw=raw, env=rate,
+                       ratio=rate / raw, resets_per_step=resets, reset_share=share,
+                       overflows=overflows, build_s=build, device=a.device, env_name=a.env)  # fmt: skip
+            rows.append(row)
+            print(f"{n:>8} {row['constraint_rows']:>5} {raw:>14,.0f} {rate:>12,.0f} "
+                  f"{rate / raw:>6.2f} {resets:>11.1f} {share:>11.1%} {overflows:>9}"
+                  f"   (build + first reset {build:.1f} s)", flush=True)  # fmt: skip
+            env.close()
+            del env
     if a.first_step:
         seconds = first_step_seconds(a.device, a.sizes[0], a.env)
         rows.append({"first_step_s": seconds, "worlds": a.sizes[0], "device": a.device})

@@ -130,6 +130,25 @@ def assert_world_1_steps_as(cpu, worlds, actions, qpos_atol: float, obs_atol: fl
         assert abs(float(reward[1]) - reward_cpu) < 1e-4
 
 
+def test_fewer_constraint_rows_step_the_same_and_a_world_needing_more_is_flagged():
+    """The constraint rows reserved per world (MuJoCo Warp's njmax) set the solver's cost, not
+    its result, while every world's rows fit; a world that needs more is flagged."""
+    runs = {}
+    for rows in (None, 72, 8):
+        env = many_worlds("stump-tracks", 2, "cpu", constraint_rows=rows)
+        env.reset(seed=1)
+        for k in range(30):
+            obs, *_ = env.step(_actions(env, 70 + k))
+        runs[rows] = (env.sim.constraint_rows, obs, env.sim.constraint_overflows())
+        env.close()
+    (default_rows, obs, overflows), (rows, tight_obs, tight_overflows) = runs[None], runs[72]
+    assert rows == 72 < default_rows
+    assert torch.equal(tight_obs, obs) and not overflows.any() and not tight_overflows.any()
+    assert runs[8][2].all()  # a walker's feet on the ground need more than 8 rows
+    with pytest.raises(ValueError, match=r"constraint_rows=0"):
+        many_worlds("stump-tracks", 2, "cpu", constraint_rows=0)
+
+
 def test_resetting_some_worlds_leaves_the_others_untouched(worlds):
     worlds.step(_actions(worlds, 7))
     sim = worlds.sim

@@ -59,7 +59,15 @@ def check_many_worlds(name: str):
     return registration
 
 
-def many_worlds(name: str, num_envs: int, device, curriculum=None, autoreset=True, **env_kwargs):
+def many_worlds(
+    name: str,
+    num_envs: int,
+    device,
+    curriculum=None,
+    autoreset=True,
+    constraint_rows: int | None = None,
+    **env_kwargs,
+):
     """The many-world simulation of a registered env (see `check_many_worlds`)."""
     registration = check_many_worlds(name)
     kwargs = {**registration.kwargs, **env_kwargs}
@@ -67,8 +75,9 @@ def many_worlds(name: str, num_envs: int, device, curriculum=None, autoreset=Tru
     device = torch.device(device)
     family = FAMILIES[registration.entry_point](device, DTYPE, **kwargs)
     return ManyWorlds(
-        num_envs, family, curriculum=curriculum, max_episode_steps=steps, autoreset=autoreset
-    )
+        num_envs, family, curriculum=curriculum, max_episode_steps=steps, autoreset=autoreset,
+        constraint_rows=constraint_rows,
+    )  # fmt: skip
 
 
 class ManyWorlds:
@@ -86,6 +95,8 @@ class ManyWorlds:
         autoreset: a finished world starts its next episode in the same step (True); False:
             it plays on, its results to be ignored, until `reset` (single-episode passes such
             as evaluations: a step then never waits for the GPU).
+        constraint_rows: constraint rows reserved per world (`WarpSimulation`); None: MuJoCo
+            Warp's estimate from the model.
     """
 
     def __init__(
@@ -96,6 +107,7 @@ class ManyWorlds:
         max_episode_steps: int = 2000,
         start_worlds: int | None = None,
         autoreset: bool = True,
+        constraint_rows: int | None = None,
     ):
         self.num_envs = validation.integer("num_envs", num_envs, 1, MAX_WORLDS)
         self.autoreset = validation.flag("autoreset", autoreset)
@@ -112,11 +124,11 @@ class ManyWorlds:
         self.observation_size, self.action_size = env.rules.obs_size, env.body.action_size
         self.action_low = torch.as_tensor(env.action_space.low, dtype=torch.float32)
         self.action_high = torch.as_tensor(env.action_space.high, dtype=torch.float32)
-        self.sim = WarpSimulation(
-            env.model, self.num_envs, env.frame_skip, family.fields, self.device
-        )
-        self.starts = WarpSimulation(
-            env.model, start_worlds, env.frame_skip, family.fields, self.device
+        self.sim, self.starts = (
+            WarpSimulation(
+                env.model, n, env.frame_skip, family.fields, self.device, constraint_rows
+            )
+            for n in (self.num_envs, start_worlds)
         )
         self.rules = family.rules
         n, f = self.num_envs, {"device": self.device, "dtype": self.sim.dtype}

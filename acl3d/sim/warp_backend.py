@@ -29,8 +29,11 @@ import mujoco
 import numpy as np
 import torch
 
+from acl3d import validation
 from acl3d.extras import optional_dependency
 from acl3d.sim.worlds import MAX_WORLDS, WorldFields
+
+MAX_CONSTRAINT_ROWS = 8192  # MuJoCo Warp's largest estimate; more is memory for nothing here
 
 _FIELDS = (
     *("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "cdof_dot", "sensordata", "qacc_warmstart"),
@@ -70,13 +73,25 @@ class WarpSimulation:
         nstep: substeps per `step()` (the env's frame_skip).
         fields: the per-world quantities.
         device: a torch device: "cuda" (or "cuda:k") or "cpu" (Warp's CPU device).
+        constraint_rows: constraint rows (contacts, limits, welds) reserved per world, MuJoCo
+            Warp's `njmax`; None: its estimate from the model. The solver's passes cost in
+            proportion to it, and a world that needs more drops the rest (MuJoCo Warp prints
+            "nefc overflow"; `constraint_overflows()` says which worlds did).
     """
 
     def __init__(
-        self, model: mujoco.MjModel, nworld: int, nstep: int, fields: WorldFields, device="cuda"
+        self,
+        model: mujoco.MjModel,
+        nworld: int,
+        nstep: int,
+        fields: WorldFields,
+        device="cuda",
+        constraint_rows: int | None = None,
     ):
         if not 1 <= nworld <= MAX_WORLDS:
             raise ValueError(f"nworld={nworld}; valid: [1, {MAX_WORLDS}]")
+        if constraint_rows is not None:
+            validation.integer("constraint_rows", constraint_rows, 1, MAX_CONSTRAINT_ROWS)
         self._wp, self._mjw = import_warp()
         wp, mjw = self._wp, self._mjw
         self.device = torch.device(device)
@@ -98,9 +113,10 @@ class WarpSimulation:
             # (50 per pair): the extra ones are dropped, a documented difference
             # (docs/architecture.md), not a message printed at every step
             self.m.opt.warn_overflow &= ~int(mjw.OverflowType.HFIELD)
-            self.d = mjw.put_data(model, data, nworld=nworld)
+            self.d = mjw.put_data(model, data, nworld=nworld, njmax=constraint_rows)
             self._terrain = self._route_terrain(model, fields)
         self._views = {name: wp.to_torch(getattr(self.d, name)) for name in _FIELDS + _FORCE_FIELDS}
+        self._overflow = wp.to_torch(self.d.overflow)
         self._caps = wp.to_torch(self.m.actuator_forcerange) if fields.force_caps else None
         self._anchors = wp.to_torch(self.m.eq_data) if fields.weld_anchors else None
         self._eq_active0 = torch.as_tensor(model.eq_active0.astype(bool), device=self.device)
@@ -167,6 +183,17 @@ class WarpSimulation:
 
     def terrain(self, hfield: str) -> torch.Tensor:
         return self._terrain[hfield]
+
+    @property
+    def constraint_rows(self) -> int:
+        """Constraint rows reserved per world (`njmax`)."""
+        return int(self.d.njmax)
+
+    def constraint_overflows(self) -> torch.Tensor:
+        """(N,) bool: the worlds that needed more constraint rows than reserved since they were
+        made (each dropped the rows beyond `constraint_rows` in those steps)."""
+        flag = int(self._mjw.OverflowType.NEFC)
+        return (self._overflow & flag) != 0
 
     def reset_worlds(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
         v = self._views
