@@ -29,7 +29,7 @@ PROTOCOLS = {
         "oracle",
     },
     "parkour-walker-v1": {"random", "alp-gmm", "covar-gmm", "riac"},
-    # v1's teachers but those that need every step's reward, which rsl-ppo does not pass yet
+    # v1's teachers but those that need every step's reward, which the many-world simulation does not pass
     "stump-v2": {
         "random",
         "alp-gmm",

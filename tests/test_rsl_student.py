@@ -187,6 +187,44 @@ def test_a_forgetting_student_starts_afresh_and_resumes_exactly(reference, tmp_p
     assert _episodes_until(whole, None) != _episodes_until(reference, None)
 
 
+def test_a_teacher_learning_from_steps_gets_each_episode_after_its_steps(tmp_path, monkeypatch):
+    """Robust PLR with rsl-ppo on the CPU batched env: each episode reaches the teacher after its
+    steps, whose rewards sum to its return (its score, the positive value loss, comes from them
+    and rsl-ppo's critic), and a run stopped at 512 steps and resumed is the uninterrupted one
+    (the teacher's open step buffers included)."""
+    from acl3d.teachers.plr import RobustPLR
+
+    scored = []
+    original = RobustPLR._episode_score
+
+    def score(self, index, reward):
+        steps = self._finished[0] if self._finished else None
+        scored.append((None if steps is None else float(np.sum(steps[1])), reward))
+        return original(self, index, reward)
+
+    monkeypatch.setattr(RobustPLR, "_episode_score", score)
+    alp_gmm = ("alp-gmm", "--teacher-param", "fit_rate=10", "nb_bootstrap=5")
+    plr = [a for a in COMMON if a not in alp_gmm]
+    plr[plr.index("--teacher") + 1 : plr.index("--teacher") + 1] = ["robust-plr"]
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    assert main(["train", *plr, "--out", str(whole)]) == 0
+    assert len(scored) > 10
+    assert all(total is not None and abs(total - ret) < 1e-3 for total, ret in scored), scored
+    shorter = [*plr, "--out", str(parts)]
+    shorter[shorter.index("--steps") + 1] = "512"
+    assert main(["train", *shorter]) == 0
+    assert main(["train", "--resume", str(parts), "--steps", str(STEPS), "--quiet"]) == 0
+    assert _episodes_until(whole, None) == _episodes_until(parts, None)
+
+
+def test_a_teacher_learning_from_steps_is_refused_on_the_many_world_simulation(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["train", "--teacher", "self-paced", "--vec-env", "warp", "--steps", "256", "--out"]
+    assert main([*argv, str(out)]) == 2
+    assert "needs every step's reward, which the many-world simulation" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_presets_and_checks():
     assert students.is_on_policy("rsl-ppo")
     fast = students.hyperparameters("rsl-ppo", "fast", 16)

@@ -10,6 +10,12 @@ tasks from what it knew a few steps earlier, in fewer, larger calls; a round hap
 points of the run (when the drawn tasks run out), so runs repeat and resume exactly. With
 `reserve` 0 (every run on the CPU batched env) each sync is a round: learn, then draw exactly
 the tasks needed.
+
+A teacher that learns from every step (Robust PLR, ACCEL, Self-Paced: "step_rewards" in its
+`needs`; on the CPU batched env only) gets each step's transitions from `record_steps`, which
+the loop calls after the step; the episodes that ended in it are learnt then, after their last
+step, and the resetting worlds' next tasks were drawn from what the teacher knew before the
+step (as SB3 students' workers get their next task one episode ahead).
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ class CurriculumRounds:
 
     def __init__(self, controller: TeacherController, times: PhaseTimes, reserve: int):
         self.controller, self.times, self.reserve = controller, times, int(reserve)
+        self.learns_steps = "step_rewards" in controller.needs
         self.finished: list[EpisodeBatch] = []
         self.episodes_done = 0
         self._waiting: list[EpisodeBatch] = []  # finished, not learnt yet
@@ -46,15 +53,30 @@ class CurriculumRounds:
         with self.times.phase("teacher"):
             if len(finished):
                 self.finished.append(finished)
-                self._waiting.append(finished)
                 self.episodes_done += len(finished)
+            if len(finished) and not self.learns_steps:
+                self._waiting.append(finished)
             need = len(env_ids)
             if need > len(self._drawn):
                 self.learn_waiting()
                 more = self.controller.sample_training_tasks(need - len(self._drawn) + self.reserve)
                 self._drawn = np.concatenate((self._drawn, more[0]))
+            if len(finished) and self.learns_steps:  # learnt after their last steps
+                self._waiting.append(finished)
             tasks, self._drawn = self._drawn[:need], self._drawn[need:]
             return tasks
+
+    def record_steps(self, obs, actions, rewards, dones, next_obs) -> None:
+        """One step of every world, (N, ...) tensors on the CPU, for a teacher that learns from
+        steps (`next_obs`: an ended episode's final observation); then the episodes that ended
+        in it are learnt. Nothing for other teachers."""
+        if not self.learns_steps:
+            return
+        with self.times.phase("teacher"):
+            arrays = [t.numpy() for t in (obs, actions, rewards, dones, next_obs)]
+            for i, (state, action, reward, done, after) in enumerate(zip(*arrays)):
+                self.controller.record_step(state, action, float(reward), after, bool(done), i)
+            self.learn_waiting()
 
     def learn_waiting(self) -> None:
         """The controller learns the episodes that wait (at a round, or at the end of a run, so

@@ -62,16 +62,16 @@ class TorchRun:
             check_test_tasks(env, self.controller.test_tasks(), self.task_names)
         finally:
             env.close()
-        if "step_rewards" in self.controller.needs:
-            raise ValueError(
-                f"teacher={config.teacher!r} needs every step's reward, which the "
-                f"{config.student!r} student does not pass; train it with an SB3 student "
-                "(student ppo or sac), or pick a teacher that learns from episode results "
-                "(alp-gmm, random, riac, ...)"
-            )
         self.params = student_params(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
         self.warp = uses_many_worlds(config)
+        if "step_rewards" in self.controller.needs and self.warp:
+            raise ValueError(
+                f"teacher={config.teacher!r} needs every step's reward, which the many-world "
+                "simulation does not pass (a host round trip and a Python call per world at "
+                "every step); train it on the CPU batched env (vec_env batched, device cpu) or "
+                "pick a teacher that learns from episode results (alp-gmm, random, riac, ...)"
+            )
         if self.device.type != "cpu" and not self.warp:
             raise ValueError(
                 f"vec_env={config.vec_env!r} with device={config.device!r}; valid on a GPU: "
@@ -201,8 +201,12 @@ class TorchRun:
             with times.phase("collect"), torch.inference_mode():
                 for _ in range(self.student.steps_per_env):
                     actions = self.student.act(obs)
+                    before = obs.clone() if self.curriculum.learns_steps else obs
                     obs, rewards, terminated, truncated, extras = self.env.step(actions)
                     self.student.record(rewards, terminated, truncated, extras["final_obs"])
+                    self.curriculum.record_steps(
+                        before, actions, rewards, terminated | truncated, extras["final_obs"]
+                    )
                     steps += n
                     self.steps = steps
                     self.controller.maybe_sample_periodically(steps)
