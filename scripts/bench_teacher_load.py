@@ -127,7 +127,8 @@ def main() -> None:
     own = reserve_for(config.n_envs, uses_many_worlds(recorded_config))
     for reserve in args.reserve or [own, 0]:
         times = PhaseTimes()
-        sync = CurriculumRounds(build_controller(config, task_space, profile), times, reserve)
+        controller = build_controller(config, task_space, profile)
+        sync = CurriculumRounds(controller, times, reserve, config.n_envs)
         time.sleep(args.setup_seconds)
         profiler = cProfile.Profile() if args.profile else None
         if profiler:

@@ -28,10 +28,13 @@ def episodes(tasks: np.ndarray, ids: np.ndarray, step: int) -> EpisodeBatch:
     )  # fmt: skip
 
 
+WORLDS = 12
+
+
 class EndingWorlds:
     """Worlds that end episodes at a varying pace (the same pace for every sync they meet)."""
 
-    def __init__(self, sync: CurriculumRounds, worlds: int = 12):
+    def __init__(self, sync: CurriculumRounds, worlds: int = WORLDS):
         self.rng = np.random.default_rng(0)
         self.current = sync.sync(EpisodeBatch.empty(2), np.arange(worlds))
 
@@ -49,7 +52,7 @@ class EndingWorlds:
 
 def test_without_a_reserve_each_sync_learns_then_draws_what_is_needed():
     direct, rounds = controller(), controller()
-    sync = CurriculumRounds(rounds, PhaseTimes(), reserve=0)
+    sync = CurriculumRounds(rounds, PhaseTimes(), reserve=0, num_envs=5)
     first = sync.sync(EpisodeBatch.empty(2), np.arange(5))
     np.testing.assert_array_equal(first, direct.sample_training_tasks(5)[0])
     batch = episodes(first[:2], np.arange(2), 100)
@@ -61,7 +64,7 @@ def test_without_a_reserve_each_sync_learns_then_draws_what_is_needed():
 
 def test_rounds_draw_ahead_and_learn_what_waited():
     c = controller()
-    sync = CurriculumRounds(c, PhaseTimes(), reserve=4)
+    sync = CurriculumRounds(c, PhaseTimes(), reserve=4, num_envs=3)
     first = sync.sync(EpisodeBatch.empty(2), np.arange(3))
     assert first.shape == (3, 2) and len(sync.state()["drawn"]) == 4
     drawn = sync.state()["drawn"]
@@ -81,13 +84,13 @@ def test_rounds_draw_ahead_and_learn_what_waited():
 
 
 def test_a_run_resumed_from_a_rounds_state_equals_the_uninterrupted_one():
-    whole = CurriculumRounds(controller(), PhaseTimes(), reserve=5)
+    whole = CurriculumRounds(controller(), PhaseTimes(), reserve=5, num_envs=WORLDS)
     handed = EndingWorlds(whole).run(whole, range(0, 400, 10))
-    first = CurriculumRounds(controller(), PhaseTimes(), reserve=5)
+    first = CurriculumRounds(controller(), PhaseTimes(), reserve=5, num_envs=WORLDS)
     worlds = EndingWorlds(first)
     before = worlds.run(first, range(0, 200, 10))
     assert "waiting" in first.state() and len(first.state()["drawn"])  # both in flight
-    again = CurriculumRounds(controller(), PhaseTimes(), reserve=5)
+    again = CurriculumRounds(controller(), PhaseTimes(), reserve=5, num_envs=WORLDS)
     again.controller.load_state_dict(first.controller.state_dict())
     again.load_state(first.state())
     after = worlds.run(again, range(200, 400, 10))

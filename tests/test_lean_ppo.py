@@ -123,3 +123,38 @@ def test_a_full_rollout_refuses_another_step():
             lean.record(rewards, dones)
         with pytest.raises(OverflowError, match="rollout is full"):
             lean.record(data[0][1], data[0][2])
+
+
+def _excluding_update(actions_offset: float, excluded: torch.Tensor, shifted=None):
+    """One rollout and update of an excluding `LeanPPO`, with `actions_offset` added to the
+    stored actions of the `shifted` transitions (default: the excluded ones); its weights after
+    the update."""
+    shifted = excluded if shifted is None else shifted
+    alg = _algorithm(LeanPPO, excludes=True)
+    data = _data(7)
+    with torch.inference_mode():
+        for t, (obs, rewards, dones) in enumerate(data[:-1]):
+            alg.act(obs)
+            alg.storage.actions[t][shifted[t]] += actions_offset
+            alg.record(rewards, dones, excluded[t])
+        alg.compute_returns(rsl_ppo._obs(data[-1][0]))
+    torch.manual_seed(1)  # the update's permutation
+    alg.update()
+    return _weights(alg)
+
+
+def test_excluded_transitions_leave_the_update_alone_and_none_excluded_is_plain_ppo():
+    """Robust PLR's exploratory levels: what an excluded transition stores (here its action)
+    changes nothing in the update; with nothing excluded the update is `LeanPPO`'s own."""
+    excluded = torch.rand((T, N), generator=torch.Generator().manual_seed(3)) < 0.4
+    assert _same(_excluding_update(0.0, excluded), _excluding_update(5.0, excluded))
+    kept = ~excluded  # the same change to kept transitions does change it
+    assert not _same(_excluding_update(0.0, excluded), _excluding_update(5.0, excluded, kept))
+    none = torch.zeros((T, N), dtype=torch.bool)
+    plain = _algorithm(LeanPPO)
+    _rollout(plain, _data(7), lean=True)
+    torch.manual_seed(1)
+    plain.update()
+    assert _same(_excluding_update(0.0, none), _weights(plain))
+    everything = torch.ones((T, N), dtype=torch.bool)  # nothing kept: no gradient step
+    assert _same(_excluding_update(0.0, everything), _excluding_update(5.0, everything))

@@ -208,6 +208,8 @@ def test_a_teacher_learning_from_steps_gets_each_episode_after_its_steps(tmp_pat
     plr[plr.index("--teacher") + 1 : plr.index("--teacher") + 1] = ["robust-plr"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     assert main(["train", *plr, "--out", str(whole)]) == 0
+    resolved = yaml.safe_load((whole / "config.yaml").read_text())["resolved"]
+    assert resolved["exclude_exploratory"] is True  # its new levels stay out of the updates
     assert len(scored) > 10
     assert all(total is not None and abs(total - ret) < 1e-3 for total, ret in scored), scored
     shorter = [*plr, "--out", str(parts)]

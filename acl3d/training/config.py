@@ -407,12 +407,12 @@ def excludes_exploratory(config: TrainConfig) -> bool:
         )
     # SAC's memory-saving buffer takes each next observation from the next slot: no exclusions
     memory_saving = config.student_params.get("optimize_memory_usage")
-    able = config.student in ("sac", "ppo") and not memory_saving
+    able = config.student in ("sac", "ppo", "rsl-ppo") and not memory_saving
     if value is True and not able:
         raise ValueError(
             f"exclude_exploratory=True: not possible with student {config.student!r}"
             + (" and optimize_memory_usage=True" if memory_saving else "")
-            + "; valid: the sac or ppo student, with optimize_memory_usage=False"
+            + "; valid: the sac, ppo or rsl-ppo student, with optimize_memory_usage=False"
         )
     if value == "auto":
         return marks and able

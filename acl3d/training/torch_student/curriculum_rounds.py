@@ -16,6 +16,10 @@ A teacher that learns from every step (Robust PLR, ACCEL, Self-Paced: "step_rewa
 the loop calls after the step; the episodes that ended in it are learnt then, after their last
 step, and the resetting worlds' next tasks were drawn from what the teacher knew before the
 step (as SB3 students' workers get their next task one episode ahead).
+
+`exploratory` holds, per world, whether its running episode plays a level the teacher marked
+exploratory (Robust PLR and ACCEL's new and edited levels), which the student leaves out of its
+updates.
 """
 
 from __future__ import annotations
@@ -41,13 +45,17 @@ class CurriculumRounds:
     """The worlds' `CurriculumSync` (see the module docstring); finished episodes also wait in
     `finished` for the episode log, and `episodes_done` counts them."""
 
-    def __init__(self, controller: TeacherController, times: PhaseTimes, reserve: int):
+    def __init__(
+        self, controller: TeacherController, times: PhaseTimes, reserve: int, num_envs: int
+    ):
         self.controller, self.times, self.reserve = controller, times, int(reserve)
         self.learns_steps = "step_rewards" in controller.needs
         self.finished: list[EpisodeBatch] = []
         self.episodes_done = 0
+        self.exploratory = np.zeros(num_envs, dtype=bool)  # of each world's running episode
         self._waiting: list[EpisodeBatch] = []  # finished, not learnt yet
         self._drawn = np.zeros((0, controller.task_space.dim), dtype=np.float32)  # not handed out
+        self._drawn_exploratory = np.zeros(0, dtype=bool)
 
     def sync(self, finished: EpisodeBatch, env_ids) -> np.ndarray:
         with self.times.phase("teacher"):
@@ -61,9 +69,12 @@ class CurriculumRounds:
                 self.learn_waiting()
                 more = self.controller.sample_training_tasks(need - len(self._drawn) + self.reserve)
                 self._drawn = np.concatenate((self._drawn, more[0]))
+                self._drawn_exploratory = np.concatenate((self._drawn_exploratory, more[1]))
             if len(finished) and self.learns_steps:  # learnt after their last steps
                 self._waiting.append(finished)
             tasks, self._drawn = self._drawn[:need], self._drawn[need:]
+            self.exploratory[np.asarray(env_ids, dtype=np.int64)] = self._drawn_exploratory[:need]
+            self._drawn_exploratory = self._drawn_exploratory[need:]
             return tasks
 
     def record_steps(self, obs, actions, rewards, dones, next_obs) -> None:
@@ -88,7 +99,11 @@ class CurriculumRounds:
     # ------------------------------------------------------------------ checkpoints
     def state(self) -> dict:
         """The drawn tasks not handed out and the episodes not learnt, for a checkpoint."""
-        state = {"drawn": self._drawn.copy()}
+        state = {
+            "drawn": self._drawn.copy(),
+            "drawn_exploratory": self._drawn_exploratory.copy(),
+            "exploratory": self.exploratory.copy(),
+        }
         if self._waiting:
             waiting = EpisodeBatch.concat(self._waiting)
             state["waiting"] = {
@@ -106,3 +121,9 @@ class CurriculumRounds:
         self._drawn = np.asarray(self._drawn, dtype=np.float32).reshape(-1, dim)
         waiting = None if state is None else state.get("waiting")
         self._waiting = [] if waiting is None else [EpisodeBatch(**waiting)]
+        # checkpoints written before exploratory flags were kept: no level was exploratory
+        flags = {} if state is None else state
+        self._drawn_exploratory = np.asarray(
+            flags.get("drawn_exploratory", np.zeros(len(self._drawn), bool)), dtype=bool
+        )
+        self.exploratory[:] = flags.get("exploratory", False)

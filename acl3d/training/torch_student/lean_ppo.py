@@ -40,10 +40,19 @@ class LeanPPO(PPO):
     symmetry, several GPUs, mixed precision or per-minibatch advantage normalisation.
 
     `critic_thread` (default: on the CPU) runs the critic's share of each minibatch on a second
-    thread beside the actor's (on a GPU the kernels already run beside the Python)."""
+    thread beside the actor's (on a GPU the kernels already run beside the Python). `excludes`:
+    `record` marks transitions left out of the update (Robust PLR's exploratory levels, as SB3
+    PPO's `ExcludingRolloutBuffer` does): the minibatches hold the kept ones of rsl_rl's
+    permutation, at its minibatch size; they still bound their episode's advantages."""
 
-    def __init__(self, actor, critic, storage, critic_thread: bool | None = None, **settings):
+    def __init__(
+        self, actor, critic, storage, critic_thread: bool | None = None, excludes: bool = False,
+        **settings,
+    ):  # fmt: skip
         super().__init__(actor, critic, storage, **settings)
+        self.excludes = bool(excludes)
+        steps = (storage.num_transitions_per_env, storage.num_envs)
+        self.excluded = torch.zeros(steps, dtype=torch.bool, device=storage.device)
         self.critic_thread = (
             torch.device(self.device).type == "cpu" if critic_thread is None else critic_thread
         )
@@ -94,13 +103,15 @@ class LeanPPO(PPO):
         """V(s) of (N, obs) observations, (N,)."""
         return self.critic.mlp(self.critic.obs_normalizer(obs)).squeeze(-1)
 
-    def record(self, rewards: torch.Tensor, dones: torch.Tensor) -> None:
-        """The outcome of the step `act` stored."""
+    def record(self, rewards: torch.Tensor, dones: torch.Tensor, excluded=None) -> None:
+        """The outcome of the step `act` stored (`excluded`: (N,) bools, with `excludes`)."""
         st = self.storage
         if st.step >= st.num_transitions_per_env:
             raise OverflowError("the rollout is full: update() before acting again")
         st.rewards[st.step].copy_(rewards.view(-1, 1))
         st.dones[st.step].copy_(dones.view(-1, 1))
+        if self.excludes:
+            self.excluded[st.step].copy_(excluded)
         st.step += 1
 
     # ------------------------------------------------------------------ the update
@@ -108,6 +119,9 @@ class LeanPPO(PPO):
         st, batches, epochs = self.storage, self.num_mini_batches, self.num_learning_epochs
         size = st.num_envs * st.num_transitions_per_env // batches
         order = torch.randperm(batches * size, device=st.device)
+        if self.excludes:  # the kept transitions, in the permutation's order
+            order = order[~self.excluded.flatten()[order]]
+            self.excluded.zero_()
         flat = self.observations.flatten(0, 1)[order]
         obs_actor, obs_critic = self.actor.obs_normalizer(flat), self.critic.obs_normalizer(flat)
         actions, values, returns, old_log_prob, advantages, old_mean, old_std = (
@@ -118,8 +132,9 @@ class LeanPPO(PPO):
         old_log_prob, advantages = old_log_prob.squeeze(-1), advantages.squeeze(-1)
         distribution, threads = self.actor.distribution, torch.get_num_threads()
         totals = torch.zeros(3, dtype=torch.float64, device=st.device)
-        for _ in range(epochs):
-            for start in range(0, batches * size, size):
+        steps = epochs * -(-len(order) // size)  # gradient steps (none if nothing is kept)
+        for _ in range(epochs if steps else 0):
+            for start in range(0, len(order), size):
                 b = slice(start, start + size)
                 for p in self.params:
                     p.grad = None
@@ -150,7 +165,7 @@ class LeanPPO(PPO):
         self.actor.update_normalization(observed)
         self.critic.update_normalization(observed)
         st.clear()
-        value, surrogate, entropy = (totals / (epochs * batches)).tolist()
+        value, surrogate, entropy = (totals / max(steps, 1)).tolist()
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
 
     def _critic_step(self, obs, values, returns, threads: int | None = None) -> torch.Tensor:

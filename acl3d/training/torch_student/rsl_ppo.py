@@ -101,8 +101,10 @@ class RslPPO:
     """The student of one run: `act` / `record` every step, `update` after each rollout."""
 
     def __init__(self, params: dict, observation_size: int, action_size: int, num_envs: int,
-                 device, action_low: torch.Tensor, action_high: torch.Tensor):  # fmt: skip
+                 device, action_low: torch.Tensor, action_high: torch.Tensor,
+                 exclude_exploratory: bool = False):  # fmt: skip
         self.params, self.device = dict(params), torch.device(device)
+        self.exclude_exploratory = bool(exclude_exploratory)
         self.spec = {
             "student": NAME,
             "observation_size": int(observation_size),
@@ -130,8 +132,9 @@ class RslPPO:
             str(self.device),
         )  # fmt: skip
         self.alg = LeanPPO(
-            actor, critic, storage, device=str(self.device), **algorithm_settings(params)
-        )
+            actor, critic, storage, device=str(self.device), excludes=self.exclude_exploratory,
+            **algorithm_settings(params),
+        )  # fmt: skip
         self.alg.train_mode()
 
     # ------------------------------------------------------------------ the rollout
@@ -140,11 +143,14 @@ class RslPPO:
         sampled ones, as SB3's PPO does)."""
         return self.alg.act(obs).clamp(self.low, self.high)
 
-    def record(self, rewards, terminated, truncated, final_obs: torch.Tensor) -> None:
+    def record(
+        self, rewards, terminated, truncated, final_obs: torch.Tensor, excluded=None
+    ) -> None:
         """One step's outcome; an episode cut by the time limit is bootstrapped with the value
         of its final observation (the critic runs on every world and the mask picks: asking
         which worlds were cut would wait for the GPU at every step; on the CPU it runs only when
-        one was)."""
+        one was). `excluded`: the worlds whose step the update leaves out (with
+        `exclude_exploratory`)."""
         dones = terminated | truncated
         if self.rewards is not None:
             rewards = self.rewards(rewards, dones)
@@ -152,7 +158,7 @@ class RslPPO:
         if self.device.type != "cpu" or bool(cut.any()):
             values = self.alg.value(final_obs)
             rewards = torch.where(cut, rewards + self.alg.gamma * values, rewards)
-        self.alg.record(rewards, dones)
+        self.alg.record(rewards, dones, excluded)
 
     def update(self, last_obs: torch.Tensor) -> dict[str, float]:
         self.alg.compute_returns(_obs(last_obs))

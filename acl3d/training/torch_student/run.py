@@ -36,7 +36,12 @@ from acl3d.envs.tensor_vector import CpuTensorVectorEnv, TensorVectorEnv
 from acl3d.run_format.tables import CsvLog, truncate_csv
 from acl3d.teachers.base import load_state, save_state
 from acl3d.training import checkpoint as ckpt
-from acl3d.training.config import TrainConfig, fixed_settings, uses_many_worlds
+from acl3d.training.config import (
+    TrainConfig,
+    excludes_exploratory,
+    fixed_settings,
+    uses_many_worlds,
+)
 from acl3d.training.run_dir import RunDir
 from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
 from acl3d.training.student_settings import student_params
@@ -81,7 +86,7 @@ class TorchRun:
             check_many_worlds(config.env)
         self.times = PhaseTimes()
         reserve = reserve_for(config.n_envs, self.warp)
-        self.curriculum = CurriculumRounds(self.controller, self.times, reserve)
+        self.curriculum = CurriculumRounds(self.controller, self.times, reserve, config.n_envs)
         self.started, self.previous_wall_time = time.perf_counter(), 0.0
         self.steps: int | None = None  # the steps trained, once provenance.json has its segment
         self.pending: list[Pending] = []  # evaluations a checkpoint left waiting
@@ -122,7 +127,7 @@ class TorchRun:
             )
         self.student = rsl_ppo.RslPPO(
             self.params, self.env.observation_size, self.env.action_size, c.n_envs,
-            self.device, self.env.action_low, self.env.action_high,
+            self.device, self.env.action_low, self.env.action_high, excludes_exploratory(c),
         )  # fmt: skip
         if "value_estimator" in self.controller.needs:
             self.controller.set_value_estimator(
@@ -202,8 +207,11 @@ class TorchRun:
                 for _ in range(self.student.steps_per_env):
                     actions = self.student.act(obs)
                     before = obs.clone() if self.curriculum.learns_steps else obs
+                    running = self._exploratory()  # the flags of the episodes this step plays
                     obs, rewards, terminated, truncated, extras = self.env.step(actions)
-                    self.student.record(rewards, terminated, truncated, extras["final_obs"])
+                    self.student.record(
+                        rewards, terminated, truncated, extras["final_obs"], running
+                    )
                     self.curriculum.record_steps(
                         before, actions, rewards, terminated | truncated, extras["final_obs"]
                     )
@@ -244,6 +252,11 @@ class TorchRun:
         if self.tb is not None:
             self.tb.close()
         return steps
+
+    def _exploratory(self) -> torch.Tensor | None:
+        if not self.student.exclude_exploratory:
+            return None
+        return torch.from_numpy(self.curriculum.exploratory.copy()).to(self.device)
 
     # ------------------------------------------------------------------ periodic work
     def _log_update(self, steps: int, losses: dict, collect: float, total: float) -> None:
@@ -349,7 +362,7 @@ def train_run(
             "eval_every": config.effective_eval_every,
             "checkpoint_every": config.effective_checkpoint_every,
             "periodical_samples_every": config.effective_periodical_samples,
-            "exclude_exploratory": False,
+            "exclude_exploratory": excludes_exploratory(config),
             "teacher_reserve": torch_run.curriculum.reserve,
             "nb_test_episodes": torch_run.controller.nb_test_episodes,
             "eval_worlds": min(
