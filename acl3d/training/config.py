@@ -309,6 +309,7 @@ def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> 
     those relative to this machine's cores and devices only `on_this_machine`."""
     from acl3d.envs.batched import MAX_ENVS
     from acl3d.sim.worlds import MAX_WORLDS
+    from acl3d.training.devices import check_device
 
     check.integer(
         "n_envs", config.effective_n_envs, 1, MAX_WORLDS if uses_many_worlds(config) else MAX_ENVS
@@ -362,31 +363,6 @@ def worker_processes(config: TrainConfig, n_envs: int) -> int:
     if config.vec_env == "dummy" or (config.vec_env == "auto" and n_envs == 1):
         return 0
     return n_envs
-
-
-def check_device(device: str) -> None:
-    """A torch device this machine has: cpu, auto, cuda[:N] with that GPU, or mps where usable."""
-    import torch
-
-    valid = "cpu, auto, cuda, cuda:N or mps (where present)"
-    if device == "auto":
-        return
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise check.fail("device", device, valid) from None
-    if dev.type == "cpu":
-        return
-    if dev.type == "cuda":
-        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
-        if count == 0:
-            raise check.fail("device", device, "cpu or auto (no CUDA GPU is visible)")
-        if dev.index is not None and dev.index >= count:
-            raise check.fail("device", device, f"cuda:0 to cuda:{count - 1}, cpu or auto")
-        return
-    if dev.type == "mps" and torch.backends.mps.is_available():
-        return
-    raise check.fail("device", device, valid)
 
 
 def excludes_exploratory(config: TrainConfig) -> bool:

@@ -106,7 +106,7 @@ def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
             _note(rounding)
 
     if students.is_torch_native(config.student):  # its own loop on tensor worlds
-        from acl3d.training.torch_student.run import train_run
+        from acl3d.training.torch_student.launch import train_run
 
         if user_callbacks:
             raise ValueError(f"callbacks: SB3 callbacks do not apply to {config.student!r}")

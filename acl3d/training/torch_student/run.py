@@ -20,8 +20,6 @@ checkpoint exactly as if it had not stopped (on the CPU; on a GPU it continues t
 from __future__ import annotations
 
 import os
-import signal
-import threading
 import time
 from pathlib import Path
 
@@ -30,7 +28,6 @@ import torch
 
 from acl3d import provenance
 from acl3d.atomic_files import atomic_replace, atomic_state_files, temp_prefix
-from acl3d.envs.batched import MAX_ENVS
 from acl3d.envs.many_worlds import check_many_worlds, many_worlds
 from acl3d.envs.tensor_vector import CpuTensorVectorEnv, TensorVectorEnv
 from acl3d.run_format.tables import CsvLog, truncate_csv
@@ -68,6 +65,7 @@ class TorchRun:
         finally:
             env.close()
         self.params = student_params(config)
+        self.exclude_exploratory = excludes_exploratory(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
         self.warp = uses_many_worlds(config)
         if "step_rewards" in self.controller.needs and self.warp:
@@ -127,7 +125,7 @@ class TorchRun:
             )
         self.student = rsl_ppo.RslPPO(
             self.params, self.env.observation_size, self.env.action_size, c.n_envs,
-            self.device, self.env.action_low, self.env.action_high, excludes_exploratory(c),
+            self.device, self.env.action_low, self.env.action_high, self.exclude_exploratory,
         )  # fmt: skip
         if "value_estimator" in self.controller.needs:
             self.controller.set_value_estimator(
@@ -344,65 +342,3 @@ def _writer(path: Path):
     from torch.utils.tensorboard import SummaryWriter
 
     return SummaryWriter(str(path))
-
-
-def train_run(
-    config: TrainConfig, run: RunDir, resume_from, target: int, overwrite: bool, checked=None
-) -> int:
-    """Train `config`'s torch-native student to `target` steps in `run` (new or resumed); the
-    run's status says finished, interrupted (Ctrl-C, SIGTERM) or crashed, as for SB3 students.
-    `checked()`, if given, is called once the run's checks have passed."""
-    torch_run = TorchRun(config, run, resume_from)  # every check before anything is written
-    if checked is not None:
-        checked()
-    sections = {
-        "student_hyperparameters": torch_run.params,
-        "resolved": {
-            "steps": target,
-            "eval_every": config.effective_eval_every,
-            "checkpoint_every": config.effective_checkpoint_every,
-            "periodical_samples_every": config.effective_periodical_samples,
-            "exclude_exploratory": excludes_exploratory(config),
-            "teacher_reserve": torch_run.curriculum.reserve,
-            "nb_test_episodes": torch_run.controller.nb_test_episodes,
-            "eval_worlds": min(
-                len(torch_run.controller.test_tasks()), config.eval_envs or MAX_ENVS
-            ),
-        },
-    }
-    torch.set_num_threads(config.torch_threads)
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _interrupt) if in_main else None
-    try:
-        steps = torch_run.train(target, sections, overwrite)
-    except KeyboardInterrupt:
-        if run.exists():
-            run.set_status("interrupted", latest_checkpoint=run.latest_checkpoint_name())
-        _close_provenance(torch_run, "interrupted")
-        raise
-    except BaseException as exc:
-        if run.exists():
-            run.set_crashed(exc)
-        _close_provenance(torch_run, "crashed")
-        raise
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
-    run.set_status("finished", steps=steps, seconds_by_phase=torch_run.times.report())
-    provenance.close(run.path, "finished", steps)
-    return steps
-
-
-def _close_provenance(torch_run: TorchRun, end: str) -> None:
-    """End the segment this process recorded (none when it stopped before the run started); a
-    failing write (a full disk) never hides the error that ended the run."""
-    if torch_run.steps is None:
-        return
-    try:
-        provenance.close(torch_run.run.path, end, torch_run.steps)
-    except OSError:
-        pass
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt(f"signal {signum}")
