@@ -266,6 +266,53 @@ def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):
     assert again == [row[2:4] for row in own if row[0] == "512"]
 
 
+@pytest.mark.parametrize("teacher", ["robust-plr", "self-paced"])
+def test_teachers_learning_from_steps_train_on_the_warp_worlds_and_resume_exactly(
+    teacher, tmp_path, monkeypatch
+):
+    """Every world's steps reach the teacher in one call per step: each Robust PLR episode is
+    scored from its own steps (their rewards sum to its return), SPDL gets each episode's first
+    observation, and a run stopped halfway and resumed is the uninterrupted one."""
+    pytest.importorskip("rsl_rl")
+    from acl3d.cli import main
+    from acl3d.teachers.plr import RobustPLR
+    from acl3d.teachers.self_paced import SelfPaced
+
+    seen = []
+    score, learn = RobustPLR._episode_score, SelfPaced._episodic_update
+
+    def scored(self, index, reward):
+        steps = self._finished[0] if self._finished else None
+        seen.append(steps is not None and abs(float(np.sum(steps[1])) - reward) < 1e-3)
+        return score(self, index, reward)
+
+    def learnt(self, task, reward, is_success):
+        seen.append(self._pending_state is not None and len(self._finished_returns) > 0)
+        return learn(self, task, reward, is_success)
+
+    monkeypatch.setattr(RobustPLR, "_episode_score", scored)
+    monkeypatch.setattr(SelfPaced, "_episodic_update", learnt)
+    params = {"robust-plr": "buffer_size=8", "self-paced": "update_frequency=64"}[teacher]
+    common = [
+        "--student", "rsl-ppo", "--env", "stump-tracks", "--teacher", teacher, "--seed", "2",
+        "--teacher-param", params, "--env-kwarg", "max_episode_steps=60", "--n-envs", "4",
+        "--nb-test-episodes", "4", "--student-param", "num_steps_per_env=32",
+        "--student-param", "hidden_dims=[32, 32]", "--eval-every", "512",
+        "--checkpoint-every", "256", "--periodical-samples-every", "256", "--no-progress",
+        "--quiet", "--vec-env", "warp",
+    ]  # fmt: skip
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    assert main(["train", *common, "--steps", "512", "--out", str(whole)]) == 0
+    assert len(seen) >= 8 and all(seen)
+    assert main(["train", *common, "--steps", "256", "--out", str(parts)]) == 0
+    assert main(["train", "--resume", str(parts), "--steps", "512", "--quiet"]) == 0
+    assert (whole / "episodes.csv").read_text() == (parts / "episodes.csv").read_text()
+    final = [
+        (run / "evals.csv").read_text().splitlines()[-1].split(",")[:6] for run in (whole, parts)
+    ]
+    assert final[0] == final[1]
+
+
 def test_policies_evaluated_side_by_side_score_as_each_alone():
     """Two policies, sampled actions, a test set in two chunks: each scores what it scores
     alone, though one block's episodes outlast the other's."""

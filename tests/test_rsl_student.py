@@ -219,14 +219,6 @@ def test_a_teacher_learning_from_steps_gets_each_episode_after_its_steps(tmp_pat
     assert _episodes_until(whole, None) == _episodes_until(parts, None)
 
 
-def test_a_teacher_learning_from_steps_is_refused_on_the_many_world_simulation(tmp_path, capsys):
-    out = tmp_path / "run"
-    argv = ["train", "--teacher", "self-paced", "--vec-env", "warp", "--steps", "256", "--out"]
-    assert main([*argv, str(out)]) == 2
-    assert "needs every step's reward, which the many-world simulation" in capsys.readouterr().err
-    assert not out.exists()
-
-
 def test_presets_and_checks():
     assert students.is_on_policy("rsl-ppo")
     fast = students.hyperparameters("rsl-ppo", "fast", 16)

@@ -95,8 +95,8 @@ class RecordingController:
                 )
             )
 
-    def record_step(self, state, action, reward, next_state, done, worker=0):
-        self.steps += 1
+    def record_steps(self, states, actions, rewards, next_states, dones, workers=None):
+        self.steps += len(rewards)
 
     def maybe_sample_periodically(self, total_steps):
         return None
@@ -273,7 +273,7 @@ def test_a_teacher_of_steps_gets_every_step_before_the_episode_it_ends():
     n = 3
     controller = StumpController(needs={"step_rewards"})
     order = []
-    controller.record_step = lambda *a, **k: order.append("step") or None
+    controller.record_steps = lambda *a, **k: order.extend(["step"] * len(a[2])) or None
     record_episodes = controller.record_episodes
     controller.record_episodes = lambda f: order.append("episodes") or record_episodes(f)
     venv = BatchedVecEnv("stump-tracks", n, curriculum=True, max_episode_steps=12)

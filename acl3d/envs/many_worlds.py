@@ -196,12 +196,13 @@ class ManyWorlds:
         qvel[:, env.arena.bound.root_dof] = (push * self._push_scale).to(self.sim.dtype)
         self.sim.reset_worlds(index, qpos, qvel)
         self.elapsed.index_fill_(0, index, 0)
-        self.stats.begin(index, torch.as_tensor(tasks, device=self.device))
         for lo in range(0, len(ids), self.starts.nworld):
             part = slice(lo, lo + self.starts.nworld)
             first, shaping = self._first_observations(index[part], qpos[part], qvel[part])
             obs = obs.index_put((index[part],), first)
             self.prev_shaping.index_put_((index[part],), shaping)
+        # first observations kept for the teachers that learn from them (Self-Paced)
+        self.stats.begin(index, torch.as_tensor(tasks, device=self.device), obs[index])
         return obs
 
     def _first_observations(self, index, qpos, qvel) -> tuple[torch.Tensor, torch.Tensor]:

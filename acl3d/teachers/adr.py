@@ -39,9 +39,9 @@ from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile, easy_task
 from acl3d.teachers import histories
 from acl3d.teachers.base import RunFacts, Teacher
+from acl3d.teachers.pending import MAX_PENDING  # boundary-sampled tasks awaiting their return
 
 STARTS = ("easy", "random")
-MAX_PENDING = 4096  # boundary-sampled tasks awaiting their return (older ones are forgotten)
 LOW, HIGH = 0, 1
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
+from acl3d.teachers.step_streams import MAX_STREAMS, check_streams
 
 # Sanity limits on what teachers are told: a reported task may lie outside the bounds (float
 # rounding, a shuffler's inverse map) but not by more than this many ranges of each dimension, and
@@ -48,11 +49,12 @@ class Teacher(ABC):
     """Base class of all teachers: what a teacher must and may do is declared here, and the
     training loop reads these declarations (it never inspects a teacher's methods or name).
 
-    Must implement `_sample()`. May implement `_sample_batch` / `_update_batch` (the batched
-    calls; by default a loop over `_sample` / `_episodic_update`), `_episodic_update`, `_step_update` (called only
-    with "step_rewards" in `needs`), `_record_initial_state` ("initial_states"),
-    `_is_exploratory` (with `marks_exploratory`), `_non_exploratory_sample`,
-    `_extra_state` / `_load_extra_state` (exact resume) and `plot_state`. The public methods
+    Must implement `_sample()`. May implement `_sample_batch` / `_update_batch` /
+    `_step_updates` (the batched calls; by default a loop over `_sample` / `_episodic_update` /
+    `_step_update`), `_episodic_update`, `_step_update` (called only with "step_rewards" in
+    `needs`), `_record_initial_state` ("initial_states"), `_is_exploratory` (with
+    `marks_exploratory`), `_non_exploratory_sample`, `_extra_state` / `_load_extra_state`
+    (exact resume) and `plot_state`. The public methods
     check their inputs before calling these, so a bad call changes nothing.
 
     Class attributes:
@@ -157,9 +159,28 @@ class Teacher(ABC):
         """One environment step of the episode running on `stream` (an env index: episodes of
         several envs interleave). Only teachers with "step_rewards" in `needs` use it."""
         reward = self._check_scalar("reward", reward)
-        stream = validation.integer("stream", stream, 0)
+        stream = validation.integer("stream", stream, 0, MAX_STREAMS - 1)
         if "step_rewards" in self.needs:
             self._step_update(state, action, reward, next_state, bool(done), stream)
+
+    def step_updates(self, states, actions, rewards, next_states, dones, streams=None) -> None:
+        """N steps taken together, one per stream (`streams`: distinct env indices; None:
+        0 .. N-1), as N `step_update` calls in that order would give: what a vector of envs
+        steps at once. Checked whole before the teacher changes."""
+        rewards = validation.real_array("rewards", rewards)
+        n = rewards.size
+        if rewards.shape != (n,) or np.any(np.abs(rewards) > MAX_ABS_RETURN):
+            raise validation.fail("rewards", rewards, f"(N,) values within +-{MAX_ABS_RETURN:g}")
+        dones = np.asarray(dones)
+        if (
+            dones.shape != (n,)
+            or dones.dtype.kind not in "bi"
+            or np.any((dones != 0) & (dones != 1))
+        ):
+            raise validation.fail("dones", dones, f"({n},) bools")
+        streams = check_streams(streams, n)
+        if "step_rewards" in self.needs:
+            self._step_updates(states, actions, rewards, next_states, dones.astype(bool), streams)
 
     def is_exploratory(self, task) -> bool:
         """Whether the episode of `task` (proposed, not yet reported) must not train the
@@ -246,6 +267,17 @@ class Teacher(ABC):
         self, state, action, reward: float, next_state, done: bool, stream: int
     ) -> None:
         pass
+
+    def _step_updates(self, states, actions, rewards, next_states, dones, streams) -> None:
+        """Checked steps (rewards, dones and streams as arrays); a loop over `_step_update`.
+        Override where the steps vectorise."""
+
+        def row(values, k: int):
+            return None if values is None else values[k]
+
+        for k, stream in enumerate(streams.tolist()):
+            state, action, next_state = row(states, k), row(actions, k), row(next_states, k)
+            self._step_update(state, action, float(rewards[k]), next_state, bool(dones[k]), stream)
 
     def _is_exploratory(self, task: np.ndarray) -> bool:
         return False

@@ -177,6 +177,14 @@ class TeacherController:
             return
         self.teacher.step_update(state, action, reward, next_state, bool(done), stream=worker)
 
+    def record_steps(self, states, actions, rewards, next_states, dones, workers=None) -> None:
+        """One step of each of N envs taken together ((N, ...) arrays; `workers`: their env
+        indices, None: 0 .. N-1), for teachers whose `needs` include "step_rewards": what N
+        `record_step` calls in that order give, in one call."""
+        if "step_rewards" not in self.needs:
+            return
+        self.teacher.step_updates(states, actions, rewards, next_states, dones, streams=workers)
+
     def record_episode(self, env_task, episode_return, length, success, initial_obs=None) -> None:
         """A finished training episode on `env_task` (as returned by `sample_task`)."""
         env_task = self._check_env_task(env_task)

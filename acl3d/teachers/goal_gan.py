@@ -42,6 +42,7 @@ from torch import nn
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile, easy_task
 from acl3d.teachers.base import RunFacts, Teacher
+from acl3d.teachers.pending import PendingTasks
 from acl3d.teachers.torch_utils import (
     check_positive,
     generator_state,
@@ -52,6 +53,7 @@ from acl3d.teachers.torch_utils import (
     module_state,
     optimizer_state,
     seeded_generator,
+    trains,
 )
 
 PRETRAIN_CENTRES = ("easy", "random")
@@ -148,7 +150,7 @@ class GoalGAN(Teacher):
         self.dis_opt = torch.optim.RMSprop(self.discriminator.parameters(), lr=lr)
 
         self._queue: list[np.ndarray] = []  # repeats of the current goal still to hand out
-        self._pending: list[tuple[np.ndarray, list[float]]] = []  # goal, successes so far
+        self._pending = PendingTasks(self.dim)  # goal -> its successes so far
         self._labelled_goals: list[np.ndarray] = []
         self._labels: list[float] = []
         self.success_buffer: list[np.ndarray] = []
@@ -184,6 +186,7 @@ class GoalGAN(Teacher):
             z = torch.randn(n, self.dim, generator=self.gen if gen is None else gen)
             return self._from_unit(self.generator(z).double().numpy())
 
+    @trains
     def _train(self, goals: np.ndarray, labels: np.ndarray, iters: int) -> None:
         """LSGAN: D pushes real positives to +1, real negatives and fakes to -1; G pushes fakes to +1."""
         x_all = torch.as_tensor(self._to_unit(goals), dtype=torch.float32)
@@ -232,7 +235,7 @@ class GoalGAN(Teacher):
             return self._queue.pop(0)
         if not self.success_buffer or self.rng.random() >= self.p_old:
             goal = self._noisy(self._generate(1)[0]).astype(np.float32)
-            self._pending.append((goal, []))
+            self._pending.add(goal, [])
             self._queue = [goal] * (self.n_rollouts - 1)
             return goal
         old = self.success_buffer[self.rng.integers(len(self.success_buffer))]
@@ -243,13 +246,13 @@ class GoalGAN(Teacher):
 
     # ------------------------------------------------------------------ feedback
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
-        for i, (goal, outcomes) in enumerate(self._pending):
-            if np.all(np.abs(goal - task) <= self._match_tol):
-                outcomes.append(float(is_success))
-                if len(outcomes) >= self.n_rollouts:
-                    del self._pending[i]
-                    self._label(goal.astype(np.float64), float(np.mean(outcomes)))
-                break
+        matches = self._pending.matches(task, 1.0, self._match_tol)
+        if len(matches):
+            outcomes = self._pending.payload(int(matches[0]))
+            outcomes.append(float(is_success))
+            if len(outcomes) >= self.n_rollouts:
+                goal, _ = self._pending.pop(int(matches[0]))
+                self._label(goal, float(np.mean(outcomes)))
         self.bk["episodes"].append(self.nb_episodes)
         if len(self._labels) >= self.update_size:
             if any(self._labels):
@@ -284,7 +287,10 @@ class GoalGAN(Teacher):
             "dis_opt": optimizer_state(self.dis_opt),
             "torch_rng": generator_state(self.gen),
             "queue": [g.copy() for g in self._queue],
-            "pending": [{"goal": g.copy(), "outcomes": list(o)} for g, o in self._pending],
+            "pending": [
+                {"goal": g.astype(np.float32), "outcomes": list(o)}
+                for g, o in self._pending.items()
+            ],
             "labelled_goals": [g.copy() for g in self._labelled_goals],
             "labels": list(self._labels),
             "success_buffer": [g.copy() for g in self.success_buffer],
@@ -297,10 +303,10 @@ class GoalGAN(Teacher):
         load_optimizer_state(self.dis_opt, extra["dis_opt"])
         load_generator_state(self.gen, extra["torch_rng"])
         self._queue = [np.asarray(g, dtype=np.float32) for g in extra["queue"]]
-        self._pending = [
+        self._pending.load(
             (np.asarray(p["goal"], dtype=np.float32), [float(o) for o in p["outcomes"]])
             for p in extra["pending"]
-        ]
+        )
         self._labelled_goals = [np.asarray(g, dtype=np.float64) for g in extra["labelled_goals"]]
         self._labels = [float(v) for v in extra["labels"]]
         self.success_buffer = [np.asarray(g, dtype=np.float64) for g in extra["success_buffer"]]

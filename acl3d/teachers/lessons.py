@@ -214,6 +214,9 @@ class Lessons(Teacher):
     def _step_update(self, state, action, reward: float, next_state, done: bool, stream) -> None:
         self.steps += 1
 
+    def _step_updates(self, states, actions, rewards, next_states, dones, streams) -> None:
+        self.steps += len(streams)
+
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
         new = reward if self.measure == "reward" else self.steps / self.max_steps
         m = 0.25 * self.smoothed + 0.75 * new if self.signal_smoothing else new

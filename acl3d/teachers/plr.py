@@ -42,10 +42,11 @@ from typing import Any
 import numpy as np
 
 from acl3d.teachers.base import Teacher
+from acl3d.teachers.pending import PendingTasks
+from acl3d.teachers.step_streams import StepTraces, check_states
 from acl3d.validation import choice, count, real, real_array
 
 NEW, REPLAY, EDIT = 0, 1, 2  # how a proposed level came about (book-keeping "kinds")
-MAX_PENDING = 4096  # proposed tasks awaiting their outcome (older ones are forgotten)
 # A reported task is its proposal when every value is this close (in ranges): a task that went
 # through the controller's dimension shuffler and float32 comes back off by ~1e-7 of a range.
 MATCH_TOLERANCE = 1e-5
@@ -101,9 +102,9 @@ class RobustPLR(Teacher):
         self.max_returns = np.zeros(0)
         self.mean_returns = np.zeros(0)
         self.plays = np.zeros(0, dtype=np.int64)
-        self._pending: list[tuple[np.ndarray, int, int]] = []  # (task, kind, level index or -1)
+        self._pending = PendingTasks(self.dim)  # task -> (kind, level index or -1)
         self._edits: deque[np.ndarray] = deque()  # ACCEL: edited levels waiting to be played
-        self._streams: dict[int, tuple[list, list]] = {}  # stream -> (states, rewards)
+        self._traces = StepTraces()  # each stream's running episode
         self._finished: deque[tuple[np.ndarray, np.ndarray]] = (
             deque()
         )  # episodes' (states, rewards)
@@ -138,8 +139,7 @@ class RobustPLR(Teacher):
         else:
             task, kind, index = self._new_level(), NEW, -1
         task = np.asarray(task, dtype=np.float32).astype(np.float64)  # what the env will play
-        self._pending.append((task, kind, index))
-        del self._pending[:-MAX_PENDING]
+        self._pending.add(task, (kind, index))
         self.bk["kinds"].append(kind)
         return task
 
@@ -149,16 +149,12 @@ class RobustPLR(Teacher):
         latest proposal answers, so asking right after `sample_task()` gives that sample's own
         kind."""
         matches = self._pending_matches(task)
-        return not len(matches) or self._pending[matches[-1]][1] != REPLAY
+        return not len(matches) or self._pending.payload(int(matches[-1]))[0] != REPLAY
 
     def _pending_matches(self, task: np.ndarray) -> np.ndarray:
         """Indices of the pending proposals that `task` is (oldest first)."""
-        if not self._pending:
-            return np.zeros(0, dtype=np.int64)
-        proposed = np.stack([t for t, _, _ in self._pending])
         span = np.where(self.maxs > self.mins, self.maxs - self.mins, 1.0)
-        off = np.abs(proposed - task) / span
-        return np.flatnonzero((off <= MATCH_TOLERANCE).all(axis=1))
+        return self._pending.matches(task, span, MATCH_TOLERANCE)
 
     def _non_exploratory_sample(self) -> np.ndarray:
         if not len(self.scores):
@@ -172,13 +168,14 @@ class RobustPLR(Teacher):
     # ------------------------------------------------------------------ feedback
     def _step_update(self, state, action, reward, next_state, done, stream: int) -> None:
         """Collect the episode running on `stream`; a finished one waits for its episodic_update."""
-        state = real_array("state", state)
-        states, rewards = self._streams.setdefault(int(stream), ([], []))
-        states.append(state.reshape(-1))
-        rewards.append(reward)
-        if done:
-            del self._streams[int(stream)]
-            self._finished.append((np.stack(states), np.asarray(rewards)))
+        state = check_states(np.asarray(state).reshape(1, -1), 1)
+        self._finished.extend(
+            self._traces.add(np.array([stream]), state, np.array([reward]), np.array([done]))
+        )
+
+    def _step_updates(self, states, actions, rewards, next_states, dones, streams) -> None:
+        states = check_states(states, len(streams))
+        self._finished.extend(self._traces.add(streams, states, rewards, dones))
 
     def _episode_score(self, index: int, reward: float) -> float:
         """Score of the episode just reported (its steps if they came, else the return)."""
@@ -201,7 +198,7 @@ class RobustPLR(Teacher):
         matches = self._pending_matches(task)
         if not len(matches):
             return NEW, -1  # a task the teacher did not propose: treated as a new level
-        _, kind, index = self._pending.pop(int(matches[0]))
+        _, (kind, index) = self._pending.pop(int(matches[0]))
         return kind, index
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
@@ -259,9 +256,9 @@ class RobustPLR(Teacher):
     def _extra_state(self) -> dict[str, Any]:
         return {
             **{k: getattr(self, k).copy() for k in self._ARRAYS},
-            "pending": [[t.copy(), kind, index] for t, kind, index in self._pending],
+            "pending": [[t, kind, index] for t, (kind, index) in self._pending.items()],
             "edits": [t.copy() for t in self._edits],
-            "streams": {str(k): [np.asarray(s), list(r)] for k, (s, r) in self._streams.items()},
+            "streams": self._traces.state(),
             "finished": [[s, r] for s, r in self._finished],
             "mean_return": self._mean_return,
         }
@@ -271,20 +268,13 @@ class RobustPLR(Teacher):
         for key in self._ARRAYS[1:]:
             dtype = np.int64 if key in ("last_played", "plays") else np.float64
             setattr(self, key, np.asarray(extra[key], dtype=dtype).reshape(-1))
-        self._pending = [
-            (np.asarray(t, dtype=np.float64).reshape(self.dim), int(k), int(i))
-            for t, k, i in extra["pending"]
-        ]
+        self._pending.load((t, (int(k), int(i))) for t, k, i in extra["pending"])
         self._edits = deque(
             np.asarray(t, dtype=np.float64).reshape(self.dim) for t in extra["edits"]
         )
-        self._streams = {
-            int(k): ([np.asarray(x, dtype=np.float64) for x in s], [float(x) for x in r])
-            for k, (s, r) in extra["streams"].items()
-        }
+        self._traces.load_state(extra["streams"])
         self._finished = deque(
-            (np.asarray(s, dtype=np.float64), np.asarray(r, dtype=np.float64))
-            for s, r in extra["finished"]
+            (np.asarray(s), np.asarray(r, dtype=np.float64)) for s, r in extra["finished"]
         )
         self._mean_return = float(extra["mean_return"])
 

@@ -39,7 +39,8 @@ from torch.distributions import MultivariateNormal, kl_divergence
 from acl3d import validation
 from acl3d.teachers import histories
 from acl3d.teachers.base import RunFacts, Teacher
-from acl3d.teachers.torch_utils import check_positive, conjugate_gradient
+from acl3d.teachers.step_streams import DiscountedReturns
+from acl3d.teachers.torch_utils import check_positive, conjugate_gradient, trains
 
 _CG_DEFAULTS = {
     "n_epochs_line_search": 10,
@@ -158,7 +159,7 @@ class SelfPaced(Teacher):
 
         self.steps = 0
         self.algo_iterations = 0
-        self._streams: dict[int, list[float]] = {}  # stream -> [discounted sum, step index]
+        self._streams = DiscountedReturns(self.discount_factor)  # each stream's running episode
         self._finished_returns: deque[float] = deque()
         self._perf_returns: list[float] = []
         self._pending_state: np.ndarray | None = None
@@ -244,16 +245,20 @@ class SelfPaced(Teacher):
 
     # ------------------------------------------------------------------ feedback
     def _step_update(self, state, action, reward, next_state, done, stream: int) -> None:
-        """Accumulate the discounted return of the episode running on `stream`; count the step."""
-        acc = self._streams.setdefault(int(stream), [0.0, 0])
-        acc[0] += self.discount_factor ** acc[1] * reward
-        acc[1] += 1
-        if done:
-            self._finished_returns.append(acc[0])
-            del self._streams[int(stream)]
-        self.steps += 1
-        if self.steps >= self.update_offset and self.steps % self.update_frequency == 0:
+        self._step_updates(
+            None, None, np.array([reward]), None, np.array([done]), np.array([stream])
+        )
+
+    def _step_updates(self, states, actions, rewards, next_states, dones, streams) -> None:
+        """Accumulate each stream's discounted return; update every `update_frequency` steps
+        (a step's place in the batch does not matter: an update reads finished episodes only)."""
+        self._finished_returns.extend(self._streams.add(streams, rewards, dones).tolist())
+        end, every = self.steps + len(streams), self.update_frequency
+        first = max(self.steps + 1, self.update_offset)
+        for step in range(-(-first // every) * every, end + 1, every):
+            self.steps = step  # the update records the step it happened at
             self._update_distribution()
+        self.steps = end
 
     def _record_initial_state(self, task: np.ndarray, state: np.ndarray) -> None:
         self._pending_state = np.array(state, dtype=np.float32).reshape(-1)
@@ -278,6 +283,7 @@ class SelfPaced(Teacher):
         return values
 
     # ------------------------------------------------------------------ the SPDL step
+    @trains
     def _update_distribution(self) -> None:
         if not self._buffer:
             return
@@ -358,7 +364,7 @@ class SelfPaced(Teacher):
             "target_cov": self.target_cov,
             "steps": self.steps,
             "algo_iterations": self.algo_iterations,
-            "streams": {str(k): list(v) for k, v in self._streams.items()},
+            "streams": self._streams.state(),
             "finished_returns": list(self._finished_returns),
             "perf_returns": list(self._perf_returns),
             "pending_state": self._pending_state,
@@ -371,7 +377,7 @@ class SelfPaced(Teacher):
         self.target_cov = np.asarray(extra["target_cov"], dtype=np.float64)
         self.steps = int(extra["steps"])
         self.algo_iterations = int(extra["algo_iterations"])
-        self._streams = {int(k): [float(v[0]), int(v[1])] for k, v in extra["streams"].items()}
+        self._streams.load_state(extra["streams"])
         self._finished_returns = deque(float(r) for r in extra["finished_returns"])
         self._perf_returns = [float(r) for r in extra["perf_returns"]]
         ps = extra["pending_state"]

@@ -36,6 +36,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from acl3d.teachers.base import Teacher
+from acl3d.teachers.pending import PendingTasks
 from acl3d.teachers.torch_utils import (
     check_positive,
     generator_state,
@@ -47,6 +48,7 @@ from acl3d.teachers.torch_utils import (
     module_state,
     optimizer_state,
     seeded_generator,
+    trains,
 )
 
 _F_MIN = 1e-8
@@ -187,7 +189,7 @@ class SetterSolver(Teacher):
         )
         self.span = self.maxs - self.mins
         self._match_tol = 1e-4 * self.span + 1e-6
-        self._pending: list[tuple[np.ndarray, np.ndarray, float]] = []  # task, unit goal, f
+        self._pending = PendingTasks(self.dim)  # task -> (unit goal, f)
         self._buffer: list[tuple[np.ndarray, float, float]] = []  # unit goal, f, success
 
     # ------------------------------------------------------------------ sampling
@@ -200,10 +202,15 @@ class SetterSolver(Teacher):
         return goals.double().numpy(), f.double().numpy()[:, 0]
 
     def _sample(self) -> np.ndarray:
-        goals, f = self._propose(1)
-        task = self.clip(self.rescale(goals[0])).astype(np.float32)
-        self._pending.append((task, goals[0], float(f[0])))
-        return task
+        return self._sample_batch(1)[0]
+
+    def _sample_batch(self, n: int) -> np.ndarray:
+        """n goals from one pass of the flow (a pass per task cost ~2 ms)."""
+        goals, f = self._propose(n)
+        tasks = self.clip(self.rescale(goals)).astype(np.float32)
+        for task, goal, feasibility in zip(tasks, goals, f.tolist()):
+            self._pending.add(task, (goal, feasibility))
+        return tasks
 
     def _non_exploratory_sample(self) -> np.ndarray:
         goals, _ = self._propose(1)
@@ -216,16 +223,16 @@ class SetterSolver(Teacher):
 
     # ------------------------------------------------------------------ feedback
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
-        for i, (proposed, goal, f) in enumerate(self._pending):
-            if np.all(np.abs(proposed - task) <= self._match_tol):
-                del self._pending[i]
-                self._buffer.append((goal, f, float(is_success)))
-                break
+        matches = self._pending.matches(task, 1.0, self._match_tol)
+        if len(matches):
+            _, (goal, f) = self._pending.pop(int(matches[0]))
+            self._buffer.append((goal, f, float(is_success)))
         self.bk["episodes"].append(self.nb_episodes)
         if (self.nb_episodes + 1) % self.update_frequency == 0 and self._buffer:
             self._update()
             self._buffer = []
 
+    @trains
     def _update(self) -> None:
         goals = torch.as_tensor(
             np.clip(np.stack([b[0] for b in self._buffer]), _GOAL_CLIP, 1 - _GOAL_CLIP),
@@ -277,7 +284,10 @@ class SetterSolver(Teacher):
             "setter_opt": optimizer_state(self.setter_opt),
             "judge_opt": optimizer_state(self.judge_opt),
             "torch_rng": generator_state(self.gen),
-            "pending": [{"task": t.copy(), "goal": g.copy(), "f": f} for t, g, f in self._pending],
+            "pending": [
+                {"task": t.astype(np.float32), "goal": g.copy(), "f": f}
+                for t, (g, f) in self._pending.items()
+            ],
             "buffer": [{"goal": g.copy(), "f": f, "success": s} for g, f, s in self._buffer],
         }
 
@@ -287,14 +297,13 @@ class SetterSolver(Teacher):
         load_optimizer_state(self.setter_opt, extra["setter_opt"])
         load_optimizer_state(self.judge_opt, extra["judge_opt"])
         load_generator_state(self.gen, extra["torch_rng"])
-        self._pending = [
+        self._pending.load(
             (
                 np.asarray(p["task"], dtype=np.float32),
-                np.asarray(p["goal"], dtype=np.float64),
-                float(p["f"]),
+                (np.asarray(p["goal"], dtype=np.float64), float(p["f"])),
             )
             for p in extra["pending"]
-        ]
+        )
         self._buffer = [
             (np.asarray(b["goal"], dtype=np.float64), float(b["f"]), float(b["success"]))
             for b in extra["buffer"]

@@ -28,9 +28,8 @@ import numpy as np
 
 from acl3d.curriculum_profile import CurriculumProfile, easy_directions
 from acl3d.teachers.base import RunFacts, Teacher
+from acl3d.teachers.pending import PendingTasks
 from acl3d.validation import count, fail, integer, real
-
-MAX_PENDING = 4096  # proposed tasks awaiting their outcome (older ones are forgotten)
 
 
 class TerrainLevels(Teacher):
@@ -119,7 +118,7 @@ class TerrainLevels(Teacher):
             )
         self.levels = self.rng.integers(0, self.max_init_level + 1, size=self.nb_workers)
         self._turn = 0
-        self._pending: list[tuple[np.ndarray, int]] = []  # (task as played, robot)
+        self._pending = PendingTasks(self.dim)  # task as played -> robot
 
     def task_at(self, difficulty: float) -> np.ndarray:
         """A task whose chosen dimensions sit at `difficulty` in [0, 1] (others uniform)."""
@@ -132,8 +131,7 @@ class TerrainLevels(Teacher):
         self._turn += 1
         u = (self.levels[robot] + self.rng.random()) / self.nb_levels
         task = np.asarray(self.clip(self.task_at(u)), dtype=np.float32).astype(np.float64)
-        self._pending.append((task, robot))
-        del self._pending[:-MAX_PENDING]
+        self._pending.add(task, robot)
         return task
 
     def _non_exploratory_sample(self) -> np.ndarray:
@@ -141,9 +139,9 @@ class TerrainLevels(Teacher):
         return self.clip(self.task_at((level + self.rng.random()) / self.nb_levels))
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
-        robot = next((i for i, (t, _) in enumerate(self._pending) if np.array_equal(t, task)), None)
-        if robot is not None:
-            _, r = self._pending.pop(robot)
+        matches = self._pending.matches(task)
+        if len(matches):
+            _, r = self._pending.pop(int(matches[0]))
             level = int(self.levels[r])
             if reward >= self.promote_return:
                 level += 1
@@ -170,12 +168,10 @@ class TerrainLevels(Teacher):
         return {
             "levels": self.levels.copy(),
             "turn": self._turn,
-            "pending": [[t.copy(), r] for t, r in self._pending],
+            "pending": [[t, r] for t, r in self._pending.items()],
         }
 
     def _load_extra_state(self, extra: dict[str, Any]) -> None:
         self.levels = np.asarray(extra["levels"], dtype=np.int64).reshape(self.nb_workers)
         self._turn = int(extra["turn"])
-        self._pending = [
-            (np.asarray(t, dtype=np.float64).reshape(self.dim), int(r)) for t, r in extra["pending"]
-        ]
+        self._pending.load((t, int(r)) for t, r in extra["pending"])

@@ -7,6 +7,7 @@ plain numpy arrays, so a saved teacher resumes bit-for-bit.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,19 @@ import torch
 from torch import nn
 
 from acl3d import validation
+
+
+def trains(method):
+    """Runs a teacher's training step with autograd on, whatever the caller's mode: teachers learn
+    inside a student's rollout (in the middle of an env step), which runs under
+    `torch.inference_mode`."""
+
+    @functools.wraps(method)
+    def with_autograd(*args, **kwargs):
+        with torch.inference_mode(False), torch.enable_grad():
+            return method(*args, **kwargs)
+
+    return with_autograd
 
 
 def check_positive(name: str, value, integer: bool = False, allow_zero: bool = False):

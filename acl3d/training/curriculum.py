@@ -272,12 +272,10 @@ class CurriculumVecEnv(VecEnvWrapper):
         """Every env's step to a teacher that learns from steps (before the episodes end)."""
         if not self._record_steps:
             return
-        for i in range(self.num_envs):
-            next_obs = infos[i]["terminal_observation"] if dones[i] else obs[i]
-            self.controller.record_step(
-                self._last_obs[i], self._actions[i], float(rewards[i]), next_obs, bool(dones[i]),
-                worker=i,
-            )  # fmt: skip
+        next_obs = obs.copy()
+        for i in np.flatnonzero(dones):
+            next_obs[i] = infos[i]["terminal_observation"]
+        self.controller.record_steps(self._last_obs, self._actions, rewards, next_obs, dones)
 
     def get_state(self) -> dict:
         """Counters, prefetch book-keeping and every worker's `get_state()` (for checkpoints;

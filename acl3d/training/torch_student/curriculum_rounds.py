@@ -12,8 +12,8 @@ points of the run (when the drawn tasks run out), so runs repeat and resume exac
 the tasks needed.
 
 A teacher that learns from every step (Robust PLR, ACCEL, Self-Paced: "step_rewards" in its
-`needs`; on the CPU batched env only) gets each step's transitions from `record_steps`, which
-the loop calls after the step; the episodes that ended in it are learnt then, after their last
+`needs`) gets every world's transition of each step in one call (`record_steps`), which the
+loop makes after the step; the episodes that ended in it are learnt then, after their last
 step, and the resetting worlds' next tasks were drawn from what the teacher knew before the
 step (as SB3 students' workers get their next task one episode ahead).
 
@@ -78,15 +78,14 @@ class CurriculumRounds:
             return tasks
 
     def record_steps(self, obs, actions, rewards, dones, next_obs) -> None:
-        """One step of every world, (N, ...) tensors on the CPU, for a teacher that learns from
-        steps (`next_obs`: an ended episode's final observation); then the episodes that ended
-        in it are learnt. Nothing for other teachers."""
+        """One step of every world, (N, ...) tensors, for a teacher that learns from steps
+        (`next_obs`: an ended episode's final observation), in one call and one copy to the
+        host; then the episodes that ended in it are learnt. Nothing for other teachers."""
         if not self.learns_steps:
             return
         with self.times.phase("teacher"):
-            arrays = [t.numpy() for t in (obs, actions, rewards, dones, next_obs)]
-            for i, (state, action, reward, done, after) in enumerate(zip(*arrays)):
-                self.controller.record_step(state, action, float(reward), after, bool(done), i)
+            arrays = [t.cpu().numpy() for t in (obs, actions, rewards, next_obs, dones)]
+            self.controller.record_steps(*arrays)
             self.learn_waiting()
 
     def learn_waiting(self) -> None:

@@ -68,13 +68,6 @@ class TorchRun:
         self.exclude_exploratory = excludes_exploratory(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
         self.warp = uses_many_worlds(config)
-        if "step_rewards" in self.controller.needs and self.warp:
-            raise ValueError(
-                f"teacher={config.teacher!r} needs every step's reward, which the many-world "
-                "simulation does not pass (a host round trip and a Python call per world at "
-                "every step); train it on the CPU batched env (vec_env batched, device cpu) or "
-                "pick a teacher that learns from episode results (alp-gmm, random, riac, ...)"
-            )
         if self.device.type != "cpu" and not self.warp:
             raise ValueError(
                 f"vec_env={config.vec_env!r} with device={config.device!r}; valid on a GPU: "

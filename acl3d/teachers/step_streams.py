@@ -1,0 +1,159 @@
+"""What teachers that learn from steps keep of the episodes still running, one row per stream.
+
+A stream is an env (a world) index: episodes of many envs interleave, one step per env at a
+time. Both records take a batch of steps, one per stream, in one call with no Python per
+stream (a many-world run steps thousands of worlds at once), and give back the episodes the
+batch ended in the batch's order: what one-stream calls in that order give, bit for bit. The
+rows are dense arrays indexed by stream, grown on demand; `state()` / `load_state()` write and
+read the {stream: record} form checkpoints hold.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from acl3d import validation
+
+MAX_STREAMS = 1 << 20  # as many as the many-world simulation has worlds
+
+
+def check_streams(streams, n: int) -> np.ndarray:
+    """(n,) distinct stream indices in [0, MAX_STREAMS); None: 0 .. n-1."""
+    if streams is None:
+        return np.arange(n, dtype=np.int64)
+    arr = np.asarray(streams)
+    if arr.shape != (n,) or arr.dtype.kind not in "iu":
+        raise validation.fail("streams", arr.tolist(), f"({n},) integer env indices")
+    arr = arr.astype(np.int64)
+    if n and (arr.min() < 0 or arr.max() >= MAX_STREAMS or len(np.unique(arr)) != n):
+        raise validation.fail("streams", arr.tolist(), f"distinct indices in [0, {MAX_STREAMS})")
+    return arr
+
+
+def check_states(states, n: int) -> np.ndarray:
+    """(n, d) finite states: float32 kept as given (observations are), anything else float64."""
+    arr = np.asarray(states)
+    if arr.dtype != np.float32:
+        arr = validation.real_array("states", arr)
+    elif not np.all(np.isfinite(arr)):
+        raise validation.fail("states", "non-finite values", "finite states")
+    if arr.ndim < 1 or arr.shape[0] != n:
+        raise validation.fail("states", arr.shape, f"({n}, ...) states, one per step")
+    return arr.reshape(n, -1)
+
+
+def _grown(array: np.ndarray, rows: int, columns: int | None = None) -> np.ndarray:
+    """`array` zero-padded to at least `rows` (and `columns` along axis 1), doubling."""
+    shape = list(array.shape)
+    if rows > shape[0]:
+        shape[0] = max(rows, 2 * shape[0])
+    if columns is not None and columns > shape[1]:
+        shape[1] = max(columns, 2 * shape[1])
+    if tuple(shape) == array.shape:
+        return array
+    out = np.zeros(shape, dtype=array.dtype)
+    out[tuple(slice(0, k) for k in array.shape)] = array
+    return out
+
+
+class StepTraces:
+    """Each stream's running episode as (states, rewards), for Robust PLR's scores. States keep
+    the dtype they come in (float32 observations take half the memory of float64)."""
+
+    def __init__(self):
+        self.lengths = np.zeros(0, dtype=np.int64)
+        self.states = np.zeros((0, 1, 0), dtype=np.float32)
+        self.rewards = np.zeros((0, 1), dtype=np.float64)
+
+    def add(self, streams: np.ndarray, states: np.ndarray, rewards, dones) -> list:
+        """One step per stream (checked inputs: `check_streams`, `check_states`); returns
+        [(states, rewards)] of the episodes it ended, in the batch's order."""
+        if not len(streams):
+            return []
+        at = self._fit(streams, states, 1)
+        self.states[streams, at] = states
+        self.rewards[streams, at] = rewards
+        self.lengths[streams] = at + 1
+        ended = streams[np.asarray(dones, dtype=bool)]
+        out = [
+            (self.states[s, :n].copy(), self.rewards[s, :n].copy())
+            for s, n in zip(ended.tolist(), self.lengths[ended].tolist())
+        ]
+        self.lengths[ended] = 0
+        return out
+
+    def _fit(self, streams: np.ndarray, states: np.ndarray, steps: int) -> np.ndarray:
+        """Room for `steps` more steps of `streams`; returns their current lengths."""
+        d = states.shape[-1]
+        if d != self.states.shape[2]:
+            if self.lengths.any():
+                raise validation.fail("states", states.shape, f"(n, {self.states.shape[2]})")
+            self.states = np.zeros((len(self.states), self.states.shape[1], d), states.dtype)
+        dtype = np.promote_types(self.states.dtype, states.dtype)
+        if dtype != self.states.dtype:
+            self.states = self.states.astype(dtype)
+        rows = int(streams.max()) + 1
+        self.lengths = _grown(self.lengths, rows)
+        at = self.lengths[streams]
+        longest = int(at.max()) + steps
+        self.states = _grown(self.states, rows, longest)
+        self.rewards = _grown(self.rewards, rows, longest)
+        return at
+
+    def state(self) -> dict:
+        return {
+            str(s): [self.states[s, :n].copy(), self.rewards[s, :n].tolist()]
+            for s, n in enumerate(self.lengths.tolist())
+            if n
+        }
+
+    def load_state(self, streams: dict) -> None:
+        self.__init__()
+        for key, (states, rewards) in streams.items():
+            n, stream = len(rewards), np.array([int(key)])
+            states = np.asarray(states)
+            states = states.astype(np.float32 if states.dtype == np.float32 else np.float64)
+            states = states.reshape(n, -1)
+            self._fit(stream, states, n)
+            self.states[stream[0], :n] = states
+            self.rewards[stream[0], :n] = rewards
+            self.lengths[stream[0]] = n
+
+
+class DiscountedReturns:
+    """Each stream's running discounted return, for SPDL: sum over k of discount**k x reward."""
+
+    def __init__(self, discount: float):
+        self.discount = float(discount)
+        self.sums = np.zeros(0, dtype=np.float64)
+        self.counts = np.zeros(0, dtype=np.int64)
+        self._powers = np.ones(1, dtype=np.float64)  # discount**k, as Python's float power
+
+    def add(self, streams: np.ndarray, rewards, dones) -> np.ndarray:
+        """One step per stream; returns the discounted returns of the episodes it ended."""
+        if not len(streams):
+            return np.zeros(0)
+        rows = int(streams.max()) + 1
+        self.sums, self.counts = _grown(self.sums, rows), _grown(self.counts, rows)
+        at = self.counts[streams]
+        if at.max() >= len(self._powers):
+            top = max(int(at.max()) + 1, 2 * len(self._powers))
+            self._powers = np.array([self.discount**k for k in range(top)])
+        self.sums[streams] = self.sums[streams] + self._powers[at] * np.asarray(rewards, float)
+        self.counts[streams] = at + 1
+        ended = streams[np.asarray(dones, dtype=bool)]
+        out = self.sums[ended].copy()
+        self.sums[ended], self.counts[ended] = 0.0, 0
+        return out
+
+    def state(self) -> dict:
+        return {
+            str(s): [float(self.sums[s]), int(n)] for s, n in enumerate(self.counts.tolist()) if n
+        }
+
+    def load_state(self, streams: dict) -> None:
+        self.__init__(self.discount)
+        for key, (total, count) in streams.items():
+            s = int(key)
+            self.sums, self.counts = _grown(self.sums, s + 1), _grown(self.counts, s + 1)
+            self.sums[s], self.counts[s] = float(total), int(count)

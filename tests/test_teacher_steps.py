@@ -1,0 +1,167 @@
+"""Teachers that learn from steps take a whole vector of envs' steps in one call: the result is
+that of one call per env in env order, a checkpoint between steps resumes exactly, a bad batch
+changes nothing, and proposals of more worlds than any run had before stay matched."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_teachers_classic import SPACES
+
+from acl3d.teachers import make
+from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.lessons import Lessons
+from acl3d.teachers.terrain_levels import TerrainLevels
+
+SPACE = SPACES["2d"]
+STEP_TEACHERS = {
+    "robust-plr": {"buffer_size": 8},
+    "accel": {"buffer_size": 8, "nb_edits": 2},
+    "self-paced": {"update_frequency": 7, "update_offset": 10, "alpha_offset": 2},
+}
+N, STEPS = 6, 120
+
+
+def _critic(states) -> np.ndarray:
+    return np.tanh(np.asarray(states, dtype=np.float64) @ np.array([0.3, -0.2, 0.1]))
+
+
+def _make(name: str):
+    teacher = make(name, SPACE, seed=4, **STEP_TEACHERS[name])
+    teacher.set_value_estimator(_critic)
+    return teacher
+
+
+def _play(teacher, batched: bool, steps: range, running: dict, tmp_path=None, name=None):
+    """Six envs stepping together for `steps`; each ended episode is learnt after its step
+    (its first state recorded for SPDL). With `tmp_path`, the teacher is saved and reloaded
+    into a fresh one halfway. Returns the teacher (possibly the reloaded one)."""
+    rng = np.random.default_rng(steps.start)
+    for t in steps:
+        for i in range(N):
+            if i not in running:
+                task = teacher.sample_task()
+                running[i] = (task, rng.normal(size=3).astype(np.float32))
+        states = np.stack([running[i][1] for i in range(N)]) + np.float32(t % 5)
+        rewards = rng.normal(size=N) * 3
+        dones = rng.random(N) < 0.08
+        actions = rng.normal(size=(N, 2))
+        if batched:
+            teacher.step_updates(states, actions, rewards, states, dones)
+        else:
+            for i in range(N):
+                teacher.step_update(states[i], actions[i], rewards[i], states[i], dones[i], i)
+        for i in np.flatnonzero(dones):
+            task, first = running.pop(int(i))
+            teacher.record_initial_state(task, first)
+            teacher.episodic_update(task, float(rewards[i] * 10))
+        if tmp_path is not None and t == steps.start + len(steps) // 2:
+            save_state(tmp_path / name, teacher.state_dict())
+            teacher = _make(name)
+            teacher.load_state_dict(load_state(tmp_path / name))
+    return teacher
+
+
+@pytest.mark.parametrize("name", list(STEP_TEACHERS))
+def test_a_batch_of_steps_is_one_step_call_per_env_in_env_order(name, tmp_path):
+    singly = _play(_make(name), False, range(STEPS), {})
+    batched = _play(_make(name), True, range(STEPS), {})
+    resumed = _play(_make(name), True, range(STEPS), {}, tmp_path, name)
+    assert batched.nb_episodes > 20
+    for other in (batched, resumed):
+        np.testing.assert_equal(other.state_dict(), singly.state_dict())
+        np.testing.assert_equal(other.dump(), singly.dump())
+    if name == "self-paced":
+        assert batched.algo_iterations > 5  # updates fell inside batches
+
+
+def test_lessons_count_a_batch_as_its_steps():
+    def lessons(batched: bool) -> Lessons:
+        t = make(
+            "lessons", SPACE, seed=0, max_steps=100,
+            curriculum={"measure": "progress", "thresholds": [0.5, 0.9], "parameters": {
+                "stump_height": [0.0, 1.0, 2.0]}},
+        )  # fmt: skip
+        for _ in range(3):
+            task = t.sample_task()
+            if batched:
+                t.step_updates(None, None, np.zeros(40), None, np.zeros(40, bool), np.arange(40))
+            else:
+                for i in range(40):
+                    t.step_update(None, None, 0.0, None, False, i)
+            t.episodic_update(task, 0.0)
+        return t
+
+    assert lessons(True).state_dict() == lessons(False).state_dict()
+    assert lessons(True).lesson == 2
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"rewards": np.array([1.0, np.nan, 0.0])}, "rewards"),
+        ({"rewards": np.zeros((3, 1))}, "rewards"),
+        ({"dones": np.array([0, 2, 0])}, "dones"),
+        ({"streams": np.array([0, 1, 1])}, "streams"),
+        ({"streams": np.array([0, 1, 1 << 20])}, "streams"),
+        ({"states": np.full((3, 3), np.inf, np.float32)}, "states"),
+        ({"states": np.zeros((2, 3), np.float32)}, "states"),
+    ],
+)
+def test_a_bad_batch_of_steps_names_its_argument_and_changes_nothing(bad, match):
+    teacher = _make("robust-plr")
+    good = {
+        "states": np.zeros((3, 3), np.float32),
+        "actions": np.zeros((3, 2)),
+        "rewards": np.ones(3),
+        "next_states": np.zeros((3, 3), np.float32),
+        "dones": np.array([False, True, False]),
+        "streams": np.array([0, 5, 2]),
+    }
+    teacher.step_updates(**good)
+    before = teacher.state_dict()
+    with pytest.raises(ValueError, match=match):
+        teacher.step_updates(**{**good, **bad})
+    np.testing.assert_equal(teacher.state_dict(), before)
+    with pytest.raises(ValueError, match="stream"):
+        teacher.step_update(np.zeros(3), None, 0.0, None, False, stream=1 << 20)
+
+
+def test_proposals_of_more_worlds_than_four_thousand_stay_matched():
+    """Every world holds a proposal until its episode ends: 10,000 in flight are all matched
+    back (their robot's level and their level's kind), oldest first."""
+    levels = TerrainLevels(SPACE, seed=0, nb_workers=10_000, promote_return=0.5, demote_return=0)
+    tasks = levels.sample_tasks(10_000)
+    before = levels.levels.copy()
+    levels.update_batch(tasks, np.ones(10_000))
+    assert np.all(levels.levels == np.minimum(before + 1, levels.nb_levels - 1))
+    assert len(levels._pending) == 0
+    plr = make("robust-plr", SPACE, seed=0, buffer_size=8)
+    tasks = plr.sample_tasks(10_000)
+    assert plr.is_exploratory(tasks[0])  # a new level, not forgotten
+    plr.update_batch(tasks, np.zeros(10_000))
+    assert len(plr._pending) == 0
+
+
+@pytest.mark.parametrize(
+    "name, params",
+    [
+        ("self-paced", {"update_frequency": 5, "update_offset": 0}),
+        ("setter-solver", {"update_frequency": 10}),
+    ],
+)
+def test_a_teacher_trains_the_same_inside_a_students_inference_mode(name, params):
+    """Students collect under torch.inference_mode and teachers learn in the middle of a step:
+    the networks and distributions they train must not notice."""
+    import torch
+
+    def play(inference: bool):
+        teacher = make(name, SPACE, seed=0, **params)
+        with torch.inference_mode(inference):
+            for i in range(120):
+                task = teacher.sample_task()
+                teacher.step_update(np.zeros(3), None, 1.0, None, True, 0)
+                teacher.episodic_update(task, float(i % 3), is_success=bool(i % 2))
+        return teacher.state_dict()
+
+    np.testing.assert_equal(play(True), play(False))
