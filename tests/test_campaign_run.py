@@ -182,3 +182,29 @@ def test_a_selection_of_cells_adds_to_the_campaign_and_keeps_its_started_runs(tm
     with pytest.raises(ValueError, match=r"started runs \['random__s0'\] are not in this one"):
         camp.prepare(longer, longer.expand(), {})
     assert [r["name"] for r in camp.read()["runs"]] == [r["name"] for r in doc["runs"]]
+
+
+def test_a_campaign_grows_by_the_cells_its_spec_stops_excluding(tmp_path):
+    """A provisional protocol that held a teacher out (Robust PLR until the student passed it
+    every step) takes it in: its directory continues under the spec without that exclusion,
+    but not under one that would exclude runs that started."""
+    from acl3d.cli.campaign import narrowed
+
+    def spec(exclude):
+        doc = load_spec("quick").scaled(seeds=2, sets={**TINY, "steps": 512}).to_dict()
+        return CampaignSpec.from_dict({**doc, "exclude": exclude})
+
+    camp = CampaignDir(tmp_path)
+    held_out = spec([{"teacher": "alp-gmm"}])
+    first = narrowed(held_out, ["seed=0"])
+    camp.prepare(first, first.expand(), {})
+    _mark_started(camp.run_dir("random__s0"))
+    grown = narrowed(spec([]), ["seed=1"])
+    camp.prepare(grown, grown.expand(), {})
+    doc = camp.read()
+    assert [r["name"] for r in doc["runs"]] == ["random__s0", "random__s1", "alp-gmm__s1"]
+    assert doc["spec"]["exclude"] == []
+    shrunk = narrowed(spec([{"teacher": "random", "seed": 0}]), ["seed=1"])
+    with pytest.raises(ValueError, match=r"started runs \['random__s0'\] that this spec excludes"):
+        camp.prepare(shrunk, shrunk.expand(), {})
+    assert camp.read() == doc

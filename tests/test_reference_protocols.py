@@ -29,15 +29,18 @@ PROTOCOLS = {
         "oracle",
     },
     "parkour-walker-v1": {"random", "alp-gmm", "covar-gmm", "riac"},
-    # v1's teachers but those that need every step's reward, which the many-world simulation does not pass
+    # v1's teachers, those that learn from every step included
     "stump-v2": {
         "random",
         "alp-gmm",
         "covar-gmm",
         "riac",
         "adr",
+        "self-paced",
         "goal-gan",
         "setter-solver",
+        "robust-plr",
+        "accel",
         "terrain-levels",
         "oracle",
     },

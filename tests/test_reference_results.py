@@ -198,7 +198,7 @@ def test_export_of_a_real_run(tmp_path):
                  "--out", str(out)]) == 0  # fmt: skip
     planned_v2 = yaml.safe_load((out / "protocol.yaml").read_text())["planned_runs"]
     assert planned_v2["random"] == planned_v2["alp-gmm"] == 16 and planned_v2["riac"] == 8
-    assert "accel" not in planned_v2
+    assert planned_v2["accel"] == planned_v2["self-paced"] == 8  # they learn from steps
     # the exported run is read like the original one
     (original,), (exported,) = load_runs(run_dir), load_runs(got)
     np.testing.assert_array_equal(original.metrics["mean_return"], exported.metrics["mean_return"])

@@ -86,6 +86,12 @@ class CampaignDir:
                 )
             if kept:  # in the order of the campaign both make up
                 order = [r.name for r in CampaignSpec.from_dict(merged).expand()]
+                outside = [r["name"] for r in kept if r["name"] not in order]
+                if outside:  # a spec that excludes started runs is another campaign
+                    raise ValueError(
+                        f"{str(self.path)!r} holds started runs {outside[:3]} that this spec "
+                        "excludes; continue it with a spec that keeps them, or choose another --out"
+                    )
                 doc["spec"] = merged
                 doc["runs"] = sorted(
                     [*kept, *doc["runs"]],
@@ -143,9 +149,10 @@ def check_environments(runs: list[RunSpec]) -> None:
 
 def _merged_spec(old: dict, new: dict) -> dict | None:
     """The spec of both invocations when they select cells of one campaign (the same name,
-    base, grid and exclusions): the cells and seeds of either; None when they are two
-    campaigns."""
-    if any(old.get(key) != new.get(key) for key in ("name", "base", "grid", "exclude")):
+    base and grid): the cells and seeds of either, under the new spec's exclusions (a campaign
+    may grow by cells it used to exclude; `prepare` refuses one that would exclude started
+    runs); None when they are two campaigns."""
+    if any(old.get(key) != new.get(key) for key in ("name", "base", "grid")):
         return None
     a, b = old.get("only") or {}, new.get("only") or {}
     only = {axis: a[axis] + [x for x in b[axis] if x not in a[axis]] for axis in a if axis in b}
