@@ -12,6 +12,9 @@
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
+#   scripts/gpu_benchmarks.sh teachers OUT [STEPS]
+#                                          # Robust PLR, SPDL and the setter-solver alone at
+#                                          # 4,096 worlds (default 2M steps): the teacher's share
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
 #   scripts/gpu_benchmarks.sh learn OUT [SEED...]
 #                                          # stump-v2's Random and ALP-GMM cells of these seeds
@@ -26,7 +29,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|speed|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|speed|teachers|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -67,6 +70,15 @@ speed)
     >"$out/speed-$worlds.txt" 2>&1
   tail -n 3 "$out/speed-$worlds.txt"
   ;;
+teachers)  # the teacher's share of a run at 4,096 worlds, for the teachers with the most work
+  # per step (Robust PLR, SPDL: every world's step) or per task (the setter-solver's flow)
+  steps=${3:-2000000}
+  for teacher in robust-plr self-paced setter-solver; do
+    train "$teacher" 0 "$steps" 4096 "$steps" 0 --out "$out/runs/teacher-$teacher" \
+      >"$out/teacher-$teacher.txt" 2>&1
+    tail -n 2 "$out/teacher-$teacher.txt"
+  done
+  ;;
 repeat)  # same seed twice, and the same run stopped at 500k and resumed, side by side
   for name in a b; do
     train alp-gmm 5 1000000 4096 500000 100 --out "$out/runs/repeat-$name" \
@@ -106,7 +118,7 @@ pack)
     mv "$packed" "$out/results.tgz"
   ;;
 *)
-  echo "unknown stage $stage: cpu, env, speed, repeat, learn, summary or pack" >&2
+  echo "unknown stage $stage: cpu, env, speed, teachers, repeat, learn, summary or pack" >&2
   exit 2
   ;;
 esac

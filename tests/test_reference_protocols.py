@@ -13,37 +13,24 @@ from acl3d.campaign.spec import check_runs
 from acl3d.teachers import teacher_class
 from acl3d.training.students import hyperparameters
 
+STUMP_TEACHERS = {
+    "random",
+    "alp-gmm",
+    "covar-gmm",
+    "riac",
+    "adr",
+    "self-paced",
+    "goal-gan",
+    "setter-solver",
+    "robust-plr",
+    "accel",
+    "terrain-levels",
+    "oracle",
+}
 PROTOCOLS = {
-    "stump-v1": {
-        "random",
-        "alp-gmm",
-        "covar-gmm",
-        "riac",
-        "adr",
-        "self-paced",
-        "goal-gan",
-        "setter-solver",
-        "robust-plr",
-        "accel",
-        "terrain-levels",
-        "oracle",
-    },
+    "stump-v1": STUMP_TEACHERS,
     "parkour-walker-v1": {"random", "alp-gmm", "covar-gmm", "riac"},
-    # v1's teachers, those that learn from every step included
-    "stump-v2": {
-        "random",
-        "alp-gmm",
-        "covar-gmm",
-        "riac",
-        "adr",
-        "self-paced",
-        "goal-gan",
-        "setter-solver",
-        "robust-plr",
-        "accel",
-        "terrain-levels",
-        "oracle",
-    },
+    "stump-v2": STUMP_TEACHERS,  # those that learn from every step included
     "parkour-walker-v2": {"random", "alp-gmm", "covar-gmm", "riac", "terrain-levels"},
 }
 
