@@ -30,6 +30,27 @@ def test_positive_value_loss_is_mean_positive_gae():
     # a perfect critic has no positive advantage; an optimistic one neither
     assert positive_value_loss([1.0, 1.0], [2.0, 1.0], 1.0, 1.0) == 0.0
     assert positive_value_loss([0.0], [5.0], 0.99, 0.95) == 0.0
+    assert positive_value_loss([], [], 0.99, 0.95) == 0.0
+
+
+def test_positive_value_loss_equals_the_step_by_step_recursion_bit_for_bit():
+    """Scores decide which levels replay: the filter must give the loop's floats exactly."""
+
+    def by_steps(rewards, values, gamma, lam):
+        adv, running, next_v = np.zeros(len(rewards)), 0.0, 0.0
+        for t in range(len(rewards) - 1, -1, -1):
+            running = rewards[t] + gamma * next_v - values[t] + gamma * lam * running
+            adv[t], next_v = running, values[t]
+        return float(np.maximum(adv, 0.0).mean())
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n = int(rng.integers(1, 400))
+        rewards, values = rng.normal(size=n) * 10.0 ** rng.integers(-2, 3), rng.normal(size=n) * 10
+        gamma, lam = rng.choice([0.9, 0.99, 0.995]), rng.choice([0.9, 0.95, 1.0])
+        assert positive_value_loss(rewards, values, gamma, lam) == by_steps(
+            rewards, values, gamma, lam
+        )
 
 
 def test_rank_and_staleness_replay_distribution():
