@@ -175,7 +175,7 @@ class RslPPO:
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         """V(s) of raw observations (the critic normalises them itself)."""
         with torch.inference_mode():
-            return self.alg.critic(_obs(obs.to(self.device))).squeeze(-1)
+            return self.alg.value(obs.to(self.device))
 
     def snapshot(self, weights: dict | None = None) -> PolicySnapshot:
         """The actor as it is now (or with `weights`, a snapshot's `state_dict`), frozen: what
