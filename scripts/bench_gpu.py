@@ -6,6 +6,7 @@
 
     python scripts/bench_gpu.py --env terrain3d --body big_quadru      # another family
     python scripts/bench_gpu.py --env terrain3d --body big_quadru --constraint-rows 0 384 256
+    python scripts/bench_gpu.py --env terrain3d --body big_quadru --contact-slots 0 24 16
 
 Per world count, in one run on one device (random actions in [-1, 1], the env's default body):
 * raw physics: `WarpSimulation.step` alone (random controls, no rules, no resets, the worlds'
@@ -18,7 +19,9 @@ Per world count, in one run on one device (random actions in [-1, 1], the env's 
 Each cell runs `--warmup` steps first (graph capture, kernel loading). `--first-step` times a
 new process from import to its first env step (the kernel cache's effect). `--constraint-rows`
 repeats every size with each number of constraint rows reserved per world (0: MuJoCo Warp's
-estimate), in rounds, and counts the worlds that needed more ("overflows").
+estimate), in rounds, and counts the worlds that needed more ("overflows"); `--contact-slots`
+does the same with the contact slots reserved per world (the shared pool's size over N), and
+says whether a step had more candidate pairs or contacts than the pool holds ("pool full").
 """
 
 from __future__ import annotations
@@ -48,10 +51,11 @@ def _sync(device: torch.device) -> None:
 
 
 def make_env(
-    n: int, device: str, name: str, body: str | None, rows: int | None = None
-) -> ManyWorlds:
+    n: int, device: str, name: str, body: str | None, rows: int | None = None,
+    slots: int | None = None,
+) -> ManyWorlds:  # fmt: skip
     kwargs = {} if body is None else {"body": body}
-    env = many_worlds(name, n, device, constraint_rows=rows, **kwargs)
+    env = many_worlds(name, n, device, constraint_rows=rows, contact_slots=slots, **kwargs)
     if name in TASKS:
         env.tasks[:] = env.task_space.to_vector(TASKS[name])
     env.reset(seed=0)
@@ -142,31 +146,42 @@ def main() -> None:
         "--constraint-rows", type=int, nargs="+", default=[0], metavar="ROWS",
         help="constraint rows reserved per world, each measured in turn (0: MuJoCo Warp's estimate)",
     )  # fmt: skip
+    p.add_argument(
+        "--contact-slots", type=int, nargs="+", default=[0], metavar="SLOTS",
+        help="contact slots reserved per world, each measured in turn (0: MuJoCo Warp's estimate)",
+    )  # fmt: skip
     p.add_argument("--rounds", type=int, default=1, help="repeat the cells in interleaved rounds")
     p.add_argument("--first-step", action="store_true", help="also time a new process's start")
     p.add_argument("--json", help="write the rows to this file too")
     a = p.parse_args()
     rows = []
     print(f"{a.env}, {a.body or 'its default body'}, device {a.device}, {a.steps} timed steps")
-    print(f"{'worlds':>8} {'rows':>5} {'raw physics/s':>14} {'env steps/s':>12} {'ratio':>6} "
-          f"{'resets/step':>11} {'reset share':>11} {'overflows':>9}")  # fmt: skip
-    cells = [(n, rows_) for n in a.sizes for rows_ in a.constraint_rows]
+    print(f"{'worlds':>8} {'rows':>5} {'slots':>5} {'raw physics/s':>14} {'env steps/s':>12} "
+          f"{'ratio':>6} {'resets/step':>11} {'reset share':>11} {'overflows':>9} "
+          f"{'pool full':>9}")  # fmt: skip
+    cells = [
+        (n, rows_, slots) for n in a.sizes for rows_ in a.constraint_rows
+        for slots in a.contact_slots
+    ]  # fmt: skip
     for _ in range(a.rounds):
-        for n, reserved in cells:
+        for n, reserved, slots in cells:
             t0 = time.perf_counter()
-            env = make_env(n, a.device, a.env, a.body, reserved or None)
+            env = make_env(n, a.device, a.env, a.body, reserved or None, slots or None)
             build = time.perf_counter() - t0
             raw = raw_rate(env, a.steps, a.warmup)
             env.reset(seed=0)
             rate, resets = env_rate(env, a.steps, a.warmup)
             share = reset_share(env, max(a.steps // 4, 10))
             overflows = int(env.sim.constraint_overflows().sum())
-            row = dict(worlds=n, constraint_rows=env.sim.constraint_rows, raw=raw, env=rate,
+            full = env.sim.contact_overflows()
+            row = dict(worlds=n, constraint_rows=env.sim.constraint_rows,
+                       contact_slots=env.sim.contact_slots, pool_full=full, raw=raw, env=rate,
                        ratio=rate / raw, resets_per_step=resets, reset_share=share,
                        overflows=overflows, build_s=build, device=a.device, env_name=a.env)  # fmt: skip
             rows.append(row)
-            print(f"{n:>8} {row['constraint_rows']:>5} {raw:>14,.0f} {rate:>12,.0f} "
-                  f"{rate / raw:>6.2f} {resets:>11.1f} {share:>11.1%} {overflows:>9}"
+            print(f"{n:>8} {row['constraint_rows']:>5} {row['contact_slots']:>5} {raw:>14,.0f} "
+                  f"{rate:>12,.0f} {rate / raw:>6.2f} {resets:>11.1f} {share:>11.1%} "
+                  f"{overflows:>9} {'yes' if full else 'no':>9}"
                   f"   (build + first reset {build:.1f} s)", flush=True)  # fmt: skip
             env.close()
             del env

@@ -130,17 +130,38 @@ def assert_world_1_steps_as(cpu, worlds, actions, qpos_atol: float, obs_atol: fl
         assert abs(float(reward[1]) - reward_cpu) < 1e-4
 
 
+def _thirty_steps(**reserved):
+    """(simulation, last observations) of two Stump Tracks worlds after 30 steps."""
+    env = many_worlds("stump-tracks", 2, "cpu", **reserved)
+    env.reset(seed=1)
+    for k in range(30):
+        obs, *_ = env.step(_actions(env, 70 + k))
+    env.close()
+    return env.sim, obs
+
+
+def test_fewer_contact_slots_step_the_same_and_a_full_pool_is_flagged():
+    """The contact slots reserved per world (MuJoCo Warp's nconmax: one pool of N x slots for
+    the broadphase's candidate pairs and the contacts) set the collision kernels' cost, not
+    their result, while the pool holds a step's pairs and contacts; a full pool is flagged."""
+    default, obs = _thirty_steps()
+    tight, tight_obs = _thirty_steps(contact_slots=8)  # 5 candidate pairs a world, ~1 contact
+    short, _ = _thirty_steps(contact_slots=2)
+    assert tight.contact_slots == 8 < default.contact_slots
+    assert torch.equal(tight_obs, obs)
+    assert not default.contact_overflows() and not tight.contact_overflows()
+    assert short.contact_overflows()
+    with pytest.raises(ValueError, match=r"contact_slots=0"):
+        many_worlds("stump-tracks", 2, "cpu", contact_slots=0)
+
+
 def test_fewer_constraint_rows_step_the_same_and_a_world_needing_more_is_flagged():
     """The constraint rows reserved per world (MuJoCo Warp's njmax) set the solver's cost, not
     its result, while every world's rows fit; a world that needs more is flagged."""
     runs = {}
     for rows in (None, 72, 8):
-        env = many_worlds("stump-tracks", 2, "cpu", constraint_rows=rows)
-        env.reset(seed=1)
-        for k in range(30):
-            obs, *_ = env.step(_actions(env, 70 + k))
-        runs[rows] = (env.sim.constraint_rows, obs, env.sim.constraint_overflows())
-        env.close()
+        sim, obs = _thirty_steps(constraint_rows=rows)
+        runs[rows] = (sim.constraint_rows, obs, sim.constraint_overflows())
     (default_rows, obs, overflows), (rows, tight_obs, tight_overflows) = runs[None], runs[72]
     assert rows == 72 < default_rows
     assert torch.equal(tight_obs, obs) and not overflows.any() and not tight_overflows.any()

@@ -66,6 +66,7 @@ def many_worlds(
     curriculum=None,
     autoreset=True,
     constraint_rows: int | None = None,
+    contact_slots: int | None = None,
     **env_kwargs,
 ):
     """The many-world simulation of a registered env (see `check_many_worlds`)."""
@@ -76,7 +77,7 @@ def many_worlds(
     family = FAMILIES[registration.entry_point](device, DTYPE, **kwargs)
     return ManyWorlds(
         num_envs, family, curriculum=curriculum, max_episode_steps=steps, autoreset=autoreset,
-        constraint_rows=constraint_rows,
+        constraint_rows=constraint_rows, contact_slots=contact_slots,
     )  # fmt: skip
 
 
@@ -95,8 +96,8 @@ class ManyWorlds:
         autoreset: a finished world starts its next episode in the same step (True); False:
             it plays on, its results to be ignored, until `reset` (single-episode passes such
             as evaluations: a step then never waits for the GPU).
-        constraint_rows: constraint rows reserved per world (`WarpSimulation`); None: MuJoCo
-            Warp's estimate from the model.
+        constraint_rows, contact_slots: constraint rows and contact slots reserved per world
+            (`WarpSimulation`); None: MuJoCo Warp's estimates from the model.
     """
 
     def __init__(
@@ -108,6 +109,7 @@ class ManyWorlds:
         start_worlds: int | None = None,
         autoreset: bool = True,
         constraint_rows: int | None = None,
+        contact_slots: int | None = None,
     ):
         self.num_envs = validation.integer("num_envs", num_envs, 1, MAX_WORLDS)
         self.autoreset = validation.flag("autoreset", autoreset)
@@ -126,8 +128,14 @@ class ManyWorlds:
         self.action_high = torch.as_tensor(env.action_space.high, dtype=torch.float32)
         self.sim, self.starts = (
             WarpSimulation(
-                env.model, n, env.frame_skip, family.fields, self.device, constraint_rows
-            )
+                env.model,
+                n,
+                env.frame_skip,
+                family.fields,
+                self.device,
+                constraint_rows,
+                contact_slots,
+            )  # fmt: skip
             for n in (self.num_envs, start_worlds)
         )
         self.rules = family.rules

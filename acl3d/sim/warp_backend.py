@@ -34,6 +34,7 @@ from acl3d.extras import optional_dependency
 from acl3d.sim.worlds import MAX_WORLDS, WorldFields
 
 MAX_CONSTRAINT_ROWS = 8192  # MuJoCo Warp's largest estimate; more is memory for nothing here
+MAX_CONTACT_SLOTS = 8192  # the same bound for the contact slots
 
 _FIELDS = (
     *("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "cdof_dot", "sensordata", "qacc_warmstart"),
@@ -77,6 +78,11 @@ class WarpSimulation:
             Warp's `njmax`; None: its estimate from the model. The solver's passes cost in
             proportion to it, and a world that needs more drops the rest (MuJoCo Warp prints
             "nefc overflow"; `constraint_overflows()` says which worlds did).
+        contact_slots: contact slots reserved per world, MuJoCo Warp's `nconmax`; None: its
+            estimate from the model. The worlds share one pool of N x this for the broadphase's
+            candidate pairs and the contacts; kernels over the pool cost in proportion to it,
+            and when a step's pairs or contacts exceed it the rest are dropped (MuJoCo Warp
+            prints "broadphase overflow" or "narrowphase overflow"; `contact_overflows()`).
     """
 
     def __init__(
@@ -87,11 +93,14 @@ class WarpSimulation:
         fields: WorldFields,
         device="cuda",
         constraint_rows: int | None = None,
+        contact_slots: int | None = None,
     ):
         if not 1 <= nworld <= MAX_WORLDS:
             raise ValueError(f"nworld={nworld}; valid: [1, {MAX_WORLDS}]")
         if constraint_rows is not None:
             validation.integer("constraint_rows", constraint_rows, 1, MAX_CONSTRAINT_ROWS)
+        if contact_slots is not None:
+            validation.integer("contact_slots", contact_slots, 1, MAX_CONTACT_SLOTS)
         self._wp, self._mjw = import_warp()
         wp, mjw = self._wp, self._mjw
         self.device = torch.device(device)
@@ -113,7 +122,9 @@ class WarpSimulation:
             # (50 per pair): the extra ones are dropped, a documented difference
             # (docs/architecture.md), not a message printed at every step
             self.m.opt.warn_overflow &= ~int(mjw.OverflowType.HFIELD)
-            self.d = mjw.put_data(model, data, nworld=nworld, njmax=constraint_rows)
+            self.d = mjw.put_data(
+                model, data, nworld=nworld, njmax=constraint_rows, nconmax=contact_slots
+            )
             self._terrain = self._route_terrain(model, fields)
         self._views = {name: wp.to_torch(getattr(self.d, name)) for name in _FIELDS + _FORCE_FIELDS}
         self._overflow = wp.to_torch(self.d.overflow)
@@ -194,6 +205,18 @@ class WarpSimulation:
         made (each dropped the rows beyond `constraint_rows` in those steps)."""
         flag = int(self._mjw.OverflowType.NEFC)
         return (self._overflow & flag) != 0
+
+    @property
+    def contact_slots(self) -> int:
+        """Contact slots reserved per world (`nconmax`: the shared pool over N)."""
+        return int(self.d.naconmax) // self.nworld
+
+    def contact_overflows(self) -> bool:
+        """Whether a step since the worlds were made had more candidate pairs or contacts than
+        the shared pool holds (some were dropped; MuJoCo Warp flags every world then)."""
+        kinds = self._mjw.OverflowType
+        flag = int(kinds.BROADPHASE) | int(kinds.NARROWPHASE)
+        return bool(((self._overflow & flag) != 0).any())
 
     def reset_worlds(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
         v = self._views
