@@ -40,9 +40,13 @@ class PendingTasks:
         """Indices (oldest first) of the proposals equal to `task`, or with every
         |proposal - task| / span within `tolerance` (per dimension, or one for all)."""
         proposed = self._tasks[: len(self._payloads)]
+        # the first dimension alone picks the few candidates; the whole check runs on them
         if span is None:
-            return np.flatnonzero((proposed == task).all(axis=1))
-        return np.flatnonzero((np.abs(proposed - task) / span <= tolerance).all(axis=1))
+            rows = np.flatnonzero(proposed[:, 0] == task[0])
+            return rows[(proposed[rows] == task).all(axis=1)]
+        span, tolerance = np.broadcast_to(span, task.shape), np.broadcast_to(tolerance, task.shape)
+        rows = np.flatnonzero(np.abs(proposed[:, 0] - task[0]) / span[0] <= tolerance[0])
+        return rows[(np.abs(proposed[rows] - task) / span <= tolerance).all(axis=1)]
 
     def payload(self, index: int):
         return self._payloads[index]
