@@ -165,3 +165,28 @@ def test_a_teacher_trains_the_same_inside_a_students_inference_mode(name, params
         return teacher.state_dict()
 
     np.testing.assert_equal(play(True), play(False))
+
+
+def test_pending_proposals_match_as_the_whole_comparison_does():
+    """Candidates come from the first dimension; the matches are those of comparing every
+    dimension of every proposal (exactly, or within a tolerance per dimension)."""
+    from acl3d.teachers.pending import PendingTasks
+
+    rng = np.random.default_rng(0)
+    tasks = rng.random((500, 3)).astype(np.float32).astype(np.float64)
+    tasks[50:60, 0] = tasks[5, 0]  # candidates on the first dimension that differ elsewhere
+    tasks[70] = tasks[5]
+    pending = PendingTasks(3)
+    for task in tasks:
+        pending.add(task, None)
+    span = np.array([3.0, 6.0, 1.0])
+    for k in range(300):
+        query = tasks[rng.integers(500)] + (rng.random(3) - 0.5) * [0, 1e-6, 1e-4][k % 3]
+        for within in ((None, 0.0), (span, 1e-5), (1.0, 1e-4 * span)):
+            whole = (
+                (tasks == query).all(axis=1)
+                if within[0] is None
+                else (np.abs(tasks - query) / within[0] <= within[1]).all(axis=1)
+            )
+            np.testing.assert_array_equal(pending.matches(query, *within), np.flatnonzero(whole))
+    assert list(pending.matches(tasks[5])) == [5, 70]
