@@ -8,11 +8,17 @@ the permutation and normalised its observations again, and every acting step bui
 computed:
 
 * Adam steps one flat copy of every parameter (a view of each), whose elementwise arithmetic is
-  the multi-tensor step's; the gradients are gathered into it after clipping.
+  the multi-tensor step's; each parameter's gradient is a view of the flat gradient, which the
+  backward passes fill (zeroed first: 0 + g is g) and the clippings scale in place.
 * An update gathers the rollout once in the order of rsl_rl's permutation (drawn once for all
   epochs) and normalises the observations once (the normalisers change only after the update),
   so a minibatch is a slice.
-* `act` and `record` run the networks on tensors and write the storage directly.
+* `act` and `record` run the networks on tensors and write the storage directly; `act` runs
+  only the actor. The rollout's values (the critic on each step's observations, as rsl_rl's
+  `act` computes them: a linear layer's bits can depend on its batch size) and the actions'
+  log-probabilities (elementwise: in one pass) are computed before its returns. On two cores
+  every small tensor operation right after a physics step is about twice as slow as in a run
+  of them, so acting does only what the next action needs.
 * On the CPU the critic's forward and backward pass of a minibatch run on a second thread while
   the actor's run on the caller's (torch releases the GIL in its kernels; the networks share no
   parameter): the update takes about 0.7x the time on two cores, and the physics' threads are
@@ -28,6 +34,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import torch
 from torch import nn
+from torch.distributions import Normal
 
 from acl3d.extras import optional_dependency
 
@@ -93,11 +100,20 @@ class LeanPPO(PPO):
         st, i = self.storage, self.storage.step
         self.observations[i].copy_(obs)
         st.actions[i].copy_(actions)
-        st.values[i].copy_(self.critic.mlp(self.critic.obs_normalizer(obs)))
-        st.actions_log_prob[i].copy_(distribution.log_prob(actions).view(-1, 1))
         for stored, value in zip(st.distribution_params, distribution.params):
             stored[i].copy_(value)
         return actions
+
+    def compute_returns(self, obs) -> None:
+        """rsl_rl's returns and advantages, after the rollout's values and log-probabilities
+        (which rsl_rl computes at each `act`)."""
+        st = self.storage
+        with torch.no_grad():
+            for values, observed in zip(st.values, self.observations):
+                values.copy_(self.critic.mlp(self.critic.obs_normalizer(observed)))
+            mean, std = st.distribution_params
+            st.actions_log_prob.copy_(Normal(mean, std).log_prob(st.actions).sum(-1, keepdim=True))
+        super().compute_returns(obs)
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         """V(s) of (N, obs) observations, (N,)."""
@@ -131,13 +147,14 @@ class LeanPPO(PPO):
         )  # fmt: skip
         old_log_prob, advantages = old_log_prob.squeeze(-1), advantages.squeeze(-1)
         distribution, threads = self.actor.distribution, torch.get_num_threads()
+        for p, view in zip(self.params, self._split(self.flat.grad)):
+            p.grad = view  # the backward passes accumulate into the zeroed views
         totals = torch.zeros(3, dtype=torch.float64, device=st.device)
         steps = epochs * -(-len(order) // size)  # gradient steps (none if nothing is kept)
         for _ in range(epochs if steps else 0):
             for start in range(0, len(order), size):
                 b = slice(start, start + size)
-                for p in self.params:
-                    p.grad = None
+                self.flat.grad.zero_()
                 critic = (obs_critic[b], values[b], returns[b])
                 if self.critic_thread:
                     critic_loss = _critic_thread().submit(self._critic_step, *critic, threads)
@@ -158,7 +175,6 @@ class LeanPPO(PPO):
                 value_loss = (
                     critic_loss.result() if self.critic_thread else self._critic_step(*critic)
                 )
-                torch.cat([p.grad.reshape(-1) for p in self.params], out=self.flat.grad)
                 self.optimizer.step()
                 totals += torch.stack([value_loss, surrogate_loss, entropy]).detach().double()
         observed = st.observations.flatten(0, 1)
