@@ -26,7 +26,7 @@ def _algorithm(cls, seed: int = 0, **options):
     torch.manual_seed(seed)
     actor, critic, obs = rsl_ppo._models(SPEC, N, "cpu")
     storage = RolloutStorage("rl", N, T, obs, [ACT], "cpu")
-    alg = cls(actor, critic, storage, device="cpu", **SETTINGS, **options)
+    alg = cls(actor, critic, storage, device="cpu", **{**SETTINGS, **options})
     alg.train_mode()
     return alg
 
@@ -82,10 +82,11 @@ def _assert_same(left: list, right: list) -> None:
             assert a == b
 
 
+@pytest.mark.parametrize("entropy_coef", [0.01, 0.0])  # 0: the `fast` preset's
 @pytest.mark.parametrize("critic_thread", [True, False])
-def test_lean_ppo_matches_rsl_rl_bit_for_bit(critic_thread):
-    reference = _algorithm(PPO)
-    lean = _algorithm(LeanPPO, critic_thread=critic_thread)
+def test_lean_ppo_matches_rsl_rl_bit_for_bit(critic_thread, entropy_coef):
+    reference = _algorithm(PPO, entropy_coef=entropy_coef)
+    lean = _algorithm(LeanPPO, critic_thread=critic_thread, entropy_coef=entropy_coef)
     assert _same(_weights(reference), _weights(lean))
     torch.manual_seed(5)
     expected = _train(reference, False, (1, 2, 3))

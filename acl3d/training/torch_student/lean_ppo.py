@@ -160,17 +160,24 @@ class LeanPPO(PPO):
                     critic_loss = _critic_thread().submit(self._critic_step, *critic, threads)
                 distribution.update(self.actor.mlp(obs_actor[b]))
                 distribution.sample()  # rsl_rl's forward draws one; the generator must agree
-                log_prob = distribution.log_prob(actions[b])
-                entropy = distribution.entropy.mean()
                 if self.desired_kl is not None and self.schedule == "adaptive":
                     self._adapt_learning_rate(old_mean[b], old_std[b])
+                log_prob = distribution.log_prob(actions[b])
+                if self.entropy_coef == 0.0:  # logged only; 0 x its gradient would add nothing
+                    with torch.no_grad():
+                        entropy = distribution.entropy.mean()
+                else:
+                    entropy = distribution.entropy.mean()
                 ratio = torch.exp(log_prob - old_log_prob[b])
                 surrogate = -advantages[b] * ratio
                 clipped = -advantages[b] * torch.clamp(
                     ratio, 1.0 - self.clip_param, 1.0 + self.clip_param
                 )
                 surrogate_loss = torch.max(surrogate, clipped).mean()
-                (surrogate_loss - self.entropy_coef * entropy).backward()
+                if self.entropy_coef == 0.0:
+                    surrogate_loss.backward()
+                else:
+                    (surrogate_loss - self.entropy_coef * entropy).backward()
                 nn.utils.clip_grad_norm_(self.actor_params, self.max_grad_norm)
                 value_loss = (
                     critic_loss.result() if self.critic_thread else self._critic_step(*critic)
