@@ -248,3 +248,40 @@ def test_each_student_gets_its_own_default_number_of_envs(tmp_path):
     limits = ["--env-kwarg", "max_episode_steps=20", "--student-param", "num_steps_per_env=2"]
     assert main(["train", "--student", "rsl-ppo", "--out", str(out), *options, *limits]) == 0
     assert yaml.safe_load((out / "config.yaml").read_text())["config"]["n_envs"] == 64
+
+
+def test_the_update_learns_from_each_steps_normalised_and_bootstrapped_rewards():
+    """`record` keeps the env's rewards and the update normalises them and bootstraps the
+    episodes the time limit cut: the rewards it learns from are those that normalising and
+    bootstrapping at every step give, bit for bit (the critic does not change in a rollout)."""
+    from acl3d.training.torch_student.rsl_ppo import RewardNormaliser, RslPPO
+
+    n, steps, obs_size = 5, 12, 7
+    params = presets.hyperparameters("fast", n, {"num_steps_per_env": steps})
+    torch.manual_seed(0)
+    student = RslPPO(params, obs_size, 2, n, "cpu", -torch.ones(2), torch.ones(2))
+    reference = RewardNormaliser(n, params["gamma"], "cpu")
+    g = torch.Generator().manual_seed(1)
+    expected, learnt = [], []
+    with torch.inference_mode():
+        for t in range(steps):
+            obs = torch.randn(n, obs_size, generator=g)
+            student.act(obs)
+            rewards = torch.randn(n, generator=g) * 10
+            terminated = torch.rand(n, generator=g) < 0.2
+            truncated = (torch.rand(n, generator=g) < 0.3) if t % 3 else torch.zeros(n, dtype=bool)
+            final = torch.randn(n, obs_size, generator=g)
+            student.record(rewards, terminated, truncated, final)
+            r = reference(rewards, terminated | truncated)
+            cut = truncated & ~terminated
+            values = student.alg.value(final)
+            expected.append(torch.where(cut, r + params["gamma"] * values, r))
+    assert any(bool((e != 0).any()) for e in expected)
+    returns = student.alg.compute_returns
+    student.alg.compute_returns = lambda last: (
+        learnt.append(student.alg.storage.rewards.clone()),
+        returns(last),
+    )
+    student.update(torch.randn(n, obs_size, generator=g))
+    assert torch.equal(learnt[0].view(steps, n), torch.stack(expected))
+    assert torch.equal(student.rewards.var, reference.var)

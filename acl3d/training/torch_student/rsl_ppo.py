@@ -114,6 +114,10 @@ class RslPPO:
         self.num_envs = int(num_envs)
         self.reinitialise()
         self.steps_per_env = int(params["num_steps_per_env"])
+        shape = (self.steps_per_env, self.num_envs)  # per step of a rollout: cut episodes
+        self._cut = torch.zeros(shape, dtype=torch.bool, device=self.device)
+        self._bootstrap = torch.zeros(shape, device=self.device)  # gamma x V(final obs)
+        self._bootstrapped = [False] * self.steps_per_env
         self.low, self.high = action_low.to(self.device), action_high.to(self.device)
         self.rewards = (
             RewardNormaliser(num_envs, params["gamma"], self.device)
@@ -146,23 +150,39 @@ class RslPPO:
     def record(
         self, rewards, terminated, truncated, final_obs: torch.Tensor, excluded=None
     ) -> None:
-        """One step's outcome; an episode cut by the time limit is bootstrapped with the value
-        of its final observation (the critic runs on every world and the mask picks: asking
-        which worlds were cut would wait for the GPU at every step; on the CPU it runs only when
-        one was). `excluded`: the worlds whose step the update leaves out (with
-        `exclude_exploratory`)."""
-        dones = terminated | truncated
-        if self.rewards is not None:
-            rewards = self.rewards(rewards, dones)
+        """One step's outcome, its rewards as the env gave them: `update` normalises the
+        rollout's rewards and bootstraps the episodes the time limit cut, step by step, with
+        the operations a step would run (right after the physics, each small tensor operation
+        costs about twice as much). A cut episode is bootstrapped with the value of its final
+        observation (the critic runs on every world and the mask picks: asking which worlds
+        were cut would wait for the GPU at every step; on the CPU it runs only when one was).
+        `excluded`: the worlds whose step the update leaves out (with `exclude_exploratory`)."""
+        self.alg.record(rewards, terminated | truncated, excluded)
+        step = self.alg.storage.step - 1
         cut = truncated & ~terminated
-        if self.device.type != "cpu" or bool(cut.any()):
-            values = self.alg.value(final_obs)
-            rewards = torch.where(cut, rewards + self.alg.gamma * values, rewards)
-        self.alg.record(rewards, dones, excluded)
+        self._bootstrapped[step] = self.device.type != "cpu" or bool(cut.any())
+        if self._bootstrapped[step]:
+            self._cut[step].copy_(cut)
+            self._bootstrap[step].copy_(self.alg.gamma * self.alg.value(final_obs))
 
     def update(self, last_obs: torch.Tensor) -> dict[str, float]:
+        self._finish_rewards()
         self.alg.compute_returns(_obs(last_obs))
         return self.alg.update()
+
+    def _finish_rewards(self) -> None:
+        """The stored rewards normalised, then the cut episodes' bootstraps added, in step
+        order."""
+        st = self.alg.storage
+        with torch.no_grad():
+            for step in range(st.step):
+                rewards = st.rewards[step].view(-1)
+                if self.rewards is not None:
+                    rewards = self.rewards(rewards, st.dones[step].view(-1).bool())
+                if self._bootstrapped[step]:
+                    bootstrapped = rewards + self._bootstrap[step]
+                    rewards = torch.where(self._cut[step], bootstrapped, rewards)
+                st.rewards[step].copy_(rewards.view(-1, 1))
 
     @property
     def learning_rate(self) -> float:
