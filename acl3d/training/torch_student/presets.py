@@ -10,7 +10,7 @@ normalisation) and adapt the rollout length to how many worlds a machine runs:
   5 x 4 with entropy 0.005 mastered 0-6% of the grid; 10 x 8 without entropy masters as much
   as SB3 PPO (Random 4.0%, ALP-GMM 7.5% against SB3's 3.8% and 8.5%) with [64, 64] as with
   [128, 128] (3.8%, 9.5%), and [64, 64] trains faster: its matrix products scale with the
-  hidden layers' widths (with `LeanPPO`, 1.32-1.52x SB3 PPO's steps/s on 2 cores). More worlds
+  hidden layers' widths (with `LeanPPO`, 1.36-1.60x SB3 PPO's steps/s on 2 cores). More worlds
   learned less at 1M: 256 worlds' 8 minibatches grow (fewer gradient steps per sample) and
   nothing was mastered; 128 worlds x 64 steps (the same update) mastered less with ALP-GMM.
 * `benchmark` (a GPU, thousands of worlds): rsl_rl's 24 steps per world (at least 20,000 steps
