@@ -28,6 +28,7 @@ tensor worlds alone with random actions, the bound no student on them can pass.
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 
 import torch
@@ -312,10 +313,14 @@ def main() -> None:
             print(f"| {n} | {sps:.0f} | {ratio} |")
         if sb3:
             print()
-            print("per round, rsl-ppo / the round's best SB3 PPO batched (measured back to back)")
+            print(
+                "per round, rsl-ppo / the round's best SB3 PPO batched (measured back to back), "
+                "then the median round (less moved by a host whose speed drifts than the best)"
+            )
             for n in args.rsl_envs:
                 ratios = [r[n] / max(s_.values()) for r, s_ in rounds]
-                print(f"| {n} | " + ", ".join(f"{x:.2f}x" for x in ratios) + " |")
+                median = statistics.median(ratios)
+                print(f"| {n} | " + ", ".join(f"{x:.2f}x" for x in ratios) + f" | {median:.2f}x |")
     if env_only:
         print()
         print("tensor worlds alone (uniform random actions, no learner), steps/s")
