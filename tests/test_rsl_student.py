@@ -250,16 +250,19 @@ def test_each_student_gets_its_own_default_number_of_envs(tmp_path):
     assert yaml.safe_load((out / "config.yaml").read_text())["config"]["n_envs"] == 64
 
 
-def test_the_update_learns_from_each_steps_normalised_and_bootstrapped_rewards():
+@pytest.mark.parametrize("every_step", [False, True])  # True: as on a GPU
+def test_the_update_learns_from_each_steps_normalised_and_bootstrapped_rewards(every_step):
     """`record` keeps the env's rewards and the update normalises them and bootstraps the
     episodes the time limit cut: the rewards it learns from are those that normalising and
-    bootstrapping at every step give, bit for bit (the critic does not change in a rollout)."""
+    bootstrapping at every step give, bit for bit (the critic does not change in a rollout),
+    whether the critic runs at the steps that cut an episode (the CPU) or at every step."""
     from acl3d.training.torch_student.rsl_ppo import RewardNormaliser, RslPPO
 
     n, steps, obs_size = 5, 12, 7
     params = presets.hyperparameters("fast", n, {"num_steps_per_env": steps})
     torch.manual_seed(0)
     student = RslPPO(params, obs_size, 2, n, "cpu", -torch.ones(2), torch.ones(2))
+    student.bootstraps_every_step = every_step
     reference = RewardNormaliser(n, params["gamma"], "cpu")
     g = torch.Generator().manual_seed(1)
     expected, learnt = [], []

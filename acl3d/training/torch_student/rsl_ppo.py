@@ -118,6 +118,7 @@ class RslPPO:
         self._cut = torch.zeros(shape, dtype=torch.bool, device=self.device)
         self._bootstrap = torch.zeros(shape, device=self.device)  # gamma x V(final obs)
         self._bootstrapped = [False] * self.steps_per_env
+        self.bootstraps_every_step = self.device.type != "cpu"  # no wait for the GPU's answer
         self.low, self.high = action_low.to(self.device), action_high.to(self.device)
         self.rewards = (
             RewardNormaliser(num_envs, params["gamma"], self.device)
@@ -160,7 +161,7 @@ class RslPPO:
         self.alg.record(rewards, terminated | truncated, excluded)
         step = self.alg.storage.step - 1
         cut = truncated & ~terminated
-        self._bootstrapped[step] = self.device.type != "cpu" or bool(cut.any())
+        self._bootstrapped[step] = self.bootstraps_every_step or bool(cut.any())
         if self._bootstrapped[step]:
             self._cut[step].copy_(cut)
             self._bootstrap[step].copy_(self.alg.gamma * self.alg.value(final_obs))
