@@ -163,10 +163,7 @@ class LeanPPO(PPO):
                 if self.desired_kl is not None and self.schedule == "adaptive":
                     self._adapt_learning_rate(old_mean[b], old_std[b])
                 log_prob = distribution.log_prob(actions[b])
-                if self.entropy_coef == 0.0:  # logged only; 0 x its gradient would add nothing
-                    with torch.no_grad():
-                        entropy = distribution.entropy.mean()
-                else:
+                with torch.set_grad_enabled(bool(self.entropy_coef)):  # 0: logged only
                     entropy = distribution.entropy.mean()
                 ratio = torch.exp(log_prob - old_log_prob[b])
                 surrogate = -advantages[b] * ratio
@@ -174,10 +171,8 @@ class LeanPPO(PPO):
                     ratio, 1.0 - self.clip_param, 1.0 + self.clip_param
                 )
                 surrogate_loss = torch.max(surrogate, clipped).mean()
-                if self.entropy_coef == 0.0:
-                    surrogate_loss.backward()
-                else:
-                    (surrogate_loss - self.entropy_coef * entropy).backward()
+                entropy_term = self.entropy_coef * entropy if self.entropy_coef else 0.0
+                (surrogate_loss - entropy_term).backward()  # 0: the surrogate's gradient alone
                 nn.utils.clip_grad_norm_(self.actor_params, self.max_grad_norm)
                 value_loss = (
                     critic_loss.result() if self.critic_thread else self._critic_step(*critic)
