@@ -115,6 +115,15 @@ def test_checkpoints_cross_between_the_two_classes():
     _assert_same(expected, _train(resumed, True, (2, 3)))
 
 
+def test_an_actor_whose_std_is_not_a_scalar_parameter_is_refused():
+    torch.manual_seed(0)
+    actor, critic, obs = rsl_ppo._models(SPEC, N, "cpu")
+    actor.distribution.std_type = "log"  # its std would come from log_std_param
+    storage = RolloutStorage("rl", N, T, obs, [ACT], "cpu")
+    with pytest.raises(ValueError, match="scalar std"):
+        LeanPPO(actor, critic, storage, device="cpu", **SETTINGS)
+
+
 def test_a_full_rollout_refuses_another_step():
     lean = _algorithm(LeanPPO)
     data = _data(0)

@@ -14,7 +14,9 @@ computed:
   epochs) and normalises the observations once (the normalisers change only after the update),
   so a minibatch is a slice.
 * `act` and `record` run the networks on tensors and write the storage directly; `act` runs
-  only the actor. The rollout's values (the critic on each step's observations, as rsl_rl's
+  only the actor, layer by layer through each module's `forward` (a module call's hook checks
+  cost as much as a 64-row layer), and samples the actions with `torch.normal`, as the Gaussian
+  distribution's `sample` does, without building the distribution. The rollout's values (the critic on each step's observations, as rsl_rl's
   `act` computes them: a linear layer's bits can depend on its batch size) and the actions'
   log-probabilities (elementwise: in one pass) are computed before its returns. On two cores
   every small tensor operation right after a physics step is about twice as slow as in a run
@@ -40,6 +42,7 @@ from acl3d.extras import optional_dependency
 
 with optional_dependency("the rsl-ppo student"):
     from rsl_rl.algorithms import PPO
+    from rsl_rl.modules.distribution import GaussianDistribution
 
 
 class LeanPPO(PPO):
@@ -67,6 +70,12 @@ class LeanPPO(PPO):
             raise ValueError("LeanPPO covers plain PPO: no RND, symmetry, multi-GPU or AMP")
         if self.normalize_advantage_per_mini_batch or actor.is_recurrent or critic.is_recurrent:
             raise ValueError("LeanPPO covers feedforward models with whole-batch advantages")
+        distribution = actor.distribution
+        if type(distribution) is not GaussianDistribution or distribution.std_type != "scalar":
+            raise ValueError("LeanPPO covers Gaussian actors with a state-independent scalar std")
+        # the networks' modules, called through `forward`: the same arithmetic without hooks
+        self.actor_layers = list(actor.mlp)
+        self.critic_layers = list(critic.mlp)
         self.actor_params = list(self.actor.parameters())
         self.critic_params = list(self.critic.parameters())
         self.params = self.actor_params + self.critic_params
@@ -94,15 +103,20 @@ class LeanPPO(PPO):
     # ------------------------------------------------------------------ the rollout
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """Sampled actions for (N, obs) observations; the step is stored as rsl_rl stores it."""
-        distribution = self.actor.distribution
-        distribution.update(self.actor.mlp(self.actor.obs_normalizer(obs)))
-        actions = distribution.sample()
+        mean = _forward(self.actor_layers, self.actor.obs_normalizer.forward(obs))
+        std = self._action_std().expand_as(mean)
+        actions = torch.normal(mean, std)  # `Normal(mean, std).sample()`: the same draws
         st, i = self.storage, self.storage.step
         self.observations[i].copy_(obs)
         st.actions[i].copy_(actions)
-        for stored, value in zip(st.distribution_params, distribution.params):
-            stored[i].copy_(value)
+        st.distribution_params[0][i].copy_(mean)
+        st.distribution_params[1][i].copy_(std)
         return actions
+
+    def _action_std(self) -> torch.Tensor:
+        """The Gaussian's std, as `GaussianDistribution.update` computes it (scalar type)."""
+        distribution = self.actor.distribution
+        return distribution.std_param.clamp(*distribution.std_range)
 
     def compute_returns(self, obs) -> None:
         """rsl_rl's returns and advantages, after the rollout's values and log-probabilities
@@ -110,14 +124,17 @@ class LeanPPO(PPO):
         st = self.storage
         with torch.no_grad():
             for values, observed in zip(st.values, self.observations):
-                values.copy_(self.critic.mlp(self.critic.obs_normalizer(observed)))
+                values.copy_(self._critic(observed))
             mean, std = st.distribution_params
             st.actions_log_prob.copy_(Normal(mean, std).log_prob(st.actions).sum(-1, keepdim=True))
         super().compute_returns(obs)
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         """V(s) of (N, obs) observations, (N,)."""
-        return self.critic.mlp(self.critic.obs_normalizer(obs)).squeeze(-1)
+        return self._critic(obs).squeeze(-1)
+
+    def _critic(self, obs: torch.Tensor) -> torch.Tensor:
+        return _forward(self.critic_layers, self.critic.obs_normalizer.forward(obs))
 
     def record(self, rewards: torch.Tensor, dones: torch.Tensor, excluded=None) -> None:
         """The outcome of the step `act` stored (`excluded`: (N,) bools, with `excludes`)."""
@@ -158,7 +175,7 @@ class LeanPPO(PPO):
                 critic = (obs_critic[b], values[b], returns[b])
                 if self.critic_thread:
                     critic_loss = _critic_thread().submit(self._critic_step, *critic, threads)
-                distribution.update(self.actor.mlp(obs_actor[b]))
+                distribution.update(_forward(self.actor_layers, obs_actor[b]))
                 distribution.sample()  # rsl_rl's forward draws one; the generator must agree
                 if self.desired_kl is not None and self.schedule == "adaptive":
                     self._adapt_learning_rate(old_mean[b], old_std[b])
@@ -193,7 +210,7 @@ class LeanPPO(PPO):
         torch thread count (a fresh thread starts at the core count)."""
         if threads is not None and torch.get_num_threads() != threads:
             torch.set_num_threads(threads)
-        value = self.critic.mlp(obs)
+        value = _forward(self.critic_layers, obs)
         if self.use_clipped_value_loss:
             clipped = values + (value - values).clamp(-self.clip_param, self.clip_param)
             loss = torch.max((value - returns).pow(2), (clipped - returns).pow(2)).mean()
@@ -255,6 +272,13 @@ class LeanPPO(PPO):
                    for k in ("exp_avg", "exp_avg_sq")},
             }  # fmt: skip
         return {"state": flat, "param_groups": [group]}
+
+
+def _forward(layers: list[nn.Module], x: torch.Tensor) -> torch.Tensor:
+    """`nn.Sequential(*layers)(x)` through each module's `forward`."""
+    for layer in layers:
+        x = layer.forward(x)
+    return x
 
 
 _CRITIC_THREAD: ThreadPoolExecutor | None = None
