@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
+from typing import NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -32,6 +33,33 @@ from acl3d.envs import env_id as resolve_env_id
 from acl3d.envs.physics import BatchPhysics
 
 MAX_ENVS = 4096
+
+
+class EngineStep(NamedTuple):
+    """One step of N sub-envs: (N, ...) arrays. `success` and `unstable` are the flags a
+    single env's step info holds (`{"success": ..., "unstable": True}` when MuJoCo reset a
+    diverged simulation); the wrappers lay them out as their APIs want."""
+
+    obs: np.ndarray
+    rewards: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    success: np.ndarray
+    unstable: np.ndarray
+
+    def info(self, i: int) -> dict:
+        """Sub-env i's step info, as the single env's."""
+        info = {"success": bool(self.success[i])}
+        if self.unstable[i]:
+            info["unstable"] = True
+        return info
+
+    def infos(self) -> list[dict]:
+        """The single envs' step infos, one dict per sub-env."""
+        infos = [{"success": s} for s in self.success.tolist()]
+        for i in self.unstable.nonzero()[0]:
+            infos[i]["unstable"] = True
+        return infos
 
 
 def default_threads() -> int:
@@ -152,18 +180,15 @@ class BatchedEnvs:
             raise ValueError(f"actions: non-finite values for sub-env(s) {bad}")
         return a
 
-    def step(self, actions):
-        """(obs, rewards, terminated, truncated, infos list); no reset of finished sub-envs."""
+    def step(self, actions) -> EngineStep:
+        """One step of every sub-env as arrays (no reset of finished sub-envs)."""
         a = self.check_actions(actions)
         if self.vectorised:
             played = self.rules.before_physics(self.physics, a, self.rows)
             self.rules.servo(played, self.physics)
             self._step_physics()
             obs, rewards, terminated, unstable = self.rules.step(self.physics, a, self.rows)
-            success = self.rows.success.tolist()
-            infos = [{"success": s} for s in success]
-            for i in unstable.nonzero()[0]:
-                infos[i]["unstable"] = True
+            success = self.rows.success.copy()
         else:
             rows = self._rows_physics
             for env, action, row in zip(self.envs, a, rows):
@@ -173,10 +198,11 @@ class BatchedEnvs:
             obs = np.stack([o[0] for o in out])
             rewards = np.array([o[1] for o in out], dtype=np.float64)
             terminated = np.array([o[2] for o in out], dtype=bool)
-            infos = [o[4] for o in out]
+            success = np.array([o[4]["success"] for o in out], dtype=bool)
+            unstable = np.array([o[4].get("unstable", False) for o in out], dtype=bool)
         self.elapsed += 1
         truncated = self.elapsed >= self.max_episode_steps
-        return obs, rewards, terminated, truncated, infos
+        return EngineStep(obs, rewards, terminated, truncated, success, unstable)
 
     def _step_physics(self) -> None:
         self.physics.step()

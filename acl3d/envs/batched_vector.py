@@ -25,12 +25,14 @@ steps draw no randomness, so sub-env i still plays exactly what a single env pla
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from acl3d import validation
-from acl3d.envs.batched import BatchedEnvs
+from acl3d.envs.batched import BatchedEnvs, EngineStep
 from acl3d.envs.curriculum_wrapper import INFO_KEY, episode_report
 from acl3d.envs.episode_statistics import (
     EpisodeBatch,
@@ -94,7 +96,7 @@ class BatchedVectorEnv(VectorEnv):
         ids = np.arange(self.num_envs)
         obs, infos = self._reset_many(ids, EpisodeBatch.empty(self.task_space.dim), seeds, per_env)
         self._autoreset[:] = False
-        return obs, _stack_infos(infos, self._every_env)
+        return obs, _stack_infos(self.num_envs, self._every_env, dict(enumerate(infos)))
 
     def _reset_many(self, ids, finished: EpisodeBatch, seeds=None, options=None):
         """Reset sub-envs `ids` (after handing `finished` to the curriculum) on their options'
@@ -118,39 +120,36 @@ class BatchedVectorEnv(VectorEnv):
         return (np.stack(obs) if obs else None), infos
 
     def step(self, actions):
-        obs, rewards, terminated, truncated, infos = self.batch.step(actions)
+        out = self.step_arrays(actions)
+        return out.obs, out.rewards, out.terminated, out.truncated, out.infos(self._every_env)
+
+    def step_arrays(self, actions) -> VectorStep:
+        """`step` with its infos as arrays and the few per-env dicts (resets, finished
+        episodes), for callers that need no Gymnasium info dict (`CpuTensorVectorEnv`)."""
+        engine = self.batch.step(actions)
+        obs, rewards, terminated, truncated = engine[:4]
         restart = self._autoreset.nonzero()[0]  # NEXT_STEP: ended at the previous step
         if len(restart):
             rewards[restart], terminated[restart], truncated[restart] = 0.0, False, False
-        success = np.fromiter((info.get("success", False) for info in infos), bool, self.num_envs)
-        done = self.stats.step(rewards, terminated, truncated, success)
+        done = self.stats.step(rewards, terminated, truncated, engine.success)
+        reset_infos: dict[int, dict] = {}
         if len(restart):
             empty = EpisodeBatch.empty(self.task_space.dim)
             new_obs, new_infos = self._reset_many(restart, empty)
             obs[restart] = new_obs
-            for i, info in zip(restart, new_infos):
-                infos[i] = info
+            reset_infos.update(zip(restart.tolist(), new_infos))
         finished = self.stats.pop()
-        for k, i in enumerate(finished.env_ids):
-            infos[i][INFO_KEY] = episode_report(
-                finished.tasks[k], finished.returns[k], finished.lengths[k],
-                finished.successes[k], finished.truncated[k], finished.initial_obs[k],
-            )  # fmt: skip
-        out = _stack_infos(infos, self._every_env)
-        ended = finished.env_ids
+        final_obs = None
         if self._next_step:
             self._autoreset = done
             if len(finished) and self.curriculum_sync is not None:
                 self.curriculum_sync.sync(finished, np.zeros(0, np.int64))
-        elif len(ended):
-            final_obs = np.empty(self.num_envs, dtype=object)
-            final_infos: list[dict] = [{} for _ in range(self.num_envs)]
-            for i in ended:
-                final_obs[i], final_infos[i] = obs[i].copy(), infos[i]
-            obs[ended] = self._reset_many(ended, finished)[0]
-            out["final_obs"], out["_final_obs"] = final_obs, done.copy()
-            out["final_info"], out["_final_info"] = _stack_infos(final_infos, done), done.copy()
-        return obs, rewards, terminated, truncated, out
+        elif len(finished):
+            final_obs = obs.copy()
+            obs[finished.env_ids] = self._reset_many(finished.env_ids, finished)[0]
+        return VectorStep(
+            obs, rewards, terminated, truncated, engine, reset_infos, finished, done, final_obs
+        )
 
     def close_extras(self, **kwargs):
         self.batch.close()
@@ -167,18 +166,78 @@ def _autoreset_mode(value) -> AutoresetMode:
     )
 
 
-def _stack_infos(infos: list[dict], mask: np.ndarray) -> dict:
-    """Gymnasium's vector info layout: per key an array over sub-envs and a `_key` mask."""
+class VectorStep(NamedTuple):
+    """One step of `BatchedVectorEnv` as arrays (`step_arrays`); `infos` lays it out as
+    Gymnasium's info dict.
+
+    The info of sub-env i is the engine's flags (`EngineStep.info(i)`), but a NEXT_STEP reset's
+    is its reset's info (`reset_infos`) and a finished episode's adds `INFO_KEY`'s report.
+    SAME_STEP: `final_obs` (N, obs) holds the last observations of the episodes that ended
+    (`done`; None if none did), `obs` the next episodes' first ones.
+    """
+
+    obs: np.ndarray
+    rewards: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    engine: EngineStep
+    reset_infos: dict[int, dict]
+    finished: EpisodeBatch
+    done: np.ndarray
+    final_obs: np.ndarray | None
+
+    def infos(self, mask: np.ndarray) -> dict:
+        n, finished = len(mask), self.finished
+        special = dict(self.reset_infos)  # the sub-envs whose info is not the flags'
+        for k, i in enumerate(finished.env_ids.tolist()):
+            info = special.setdefault(i, self.engine.info(i))
+            info[INFO_KEY] = episode_report(
+                finished.tasks[k], finished.returns[k], finished.lengths[k],
+                finished.successes[k], finished.truncated[k], finished.initial_obs[k],
+            )  # fmt: skip
+        flags = {"success": (self.engine.success, np.ones(n, bool))}
+        if self.engine.unstable.any():
+            flags["unstable"] = (self.engine.unstable, self.engine.unstable)
+        out = _stack_infos(n, mask, special, flags)
+        if self.final_obs is not None:
+            ended = self.done.nonzero()[0].tolist()
+            final_obs = np.empty(n, dtype=object)
+            for i in ended:
+                final_obs[i] = self.final_obs[i].copy()
+            out["final_obs"], out["_final_obs"] = final_obs, self.done.copy()
+            out["final_info"] = _stack_infos(n, self.done, {i: special[i] for i in ended})
+            out["_final_info"] = self.done.copy()
+        return out
+
+
+def _stack_infos(n: int, mask: np.ndarray, infos: dict[int, dict], flags=None) -> dict:
+    """Gymnasium's vector info layout (per key an array over sub-envs and a `_key` mask) of N
+    infos: sub-env i's is `infos[i]` where given, else what `flags` says (key -> ((N,) bool
+    values, (N,) mask of the infos holding the key)). A key is laid out when some info holds
+    it; keys whose values are all bools (or absent) give bool arrays, others object arrays."""
+    flags = flags or {}
+    ids = np.fromiter(infos, np.int64, len(infos))
+    given_rows = np.zeros(n, bool)
+    given_rows[ids] = True
+    keys = set().union(*infos.values())
+    keys |= {key for key, (_, held) in flags.items() if (held & ~given_rows).any()}
     out: dict = {}
-    n = len(infos)
-    for key in sorted(set().union(*infos)):
-        values = [info.get(key) for info in infos]
-        has = np.fromiter([key in info for info in infos], bool, n) & mask
-        if all(type(v) is bool or v is None for v in values):  # every step's "success"
-            arr = np.fromiter(values, bool, n) & has
+    for key in sorted(keys):
+        values, held = flags.get(key, (np.zeros(n, bool), np.zeros(n, bool)))
+        given = [info.get(key) for info in infos.values()]
+        has = held.copy()
+        has[ids] = [key in info for info in infos.values()]
+        has &= mask
+        if all(type(v) is bool or v is None for v in given):
+            arr = values.copy()
+            arr[ids] = [bool(v) for v in given]
+            arr &= has
         else:
             arr = np.zeros(n, dtype=object)
-            arr[has] = [values[i] for i in has.nonzero()[0]]
+            arr[has] = values[has].tolist()
+            for i, value in zip(ids.tolist(), given):
+                if has[i]:
+                    arr[i] = value
         out[key], out["_" + key] = arr, has
     return out
 

@@ -95,20 +95,15 @@ class CpuTensorVectorEnv:
         return _floats(obs)
 
     def step(self, actions: torch.Tensor):
-        obs, rewards, terminated, truncated, infos = self.vector.step(actions.detach().numpy())
-        obs_t = _floats(obs)
-        final = obs_t
-        if "final_obs" in infos:
-            ended = infos["_final_obs"]
-            final = obs_t.clone()
-            final[torch.from_numpy(ended)] = _floats(np.stack(infos["final_obs"][ended]))
-        success = infos.get("success", np.zeros(self.num_envs, dtype=bool))
-        extras = {"final_obs": final, "success": torch.from_numpy(success.astype(bool))}
+        out = self.vector.step_arrays(actions.detach().numpy())
+        obs = _floats(out.obs)
+        final = obs if out.final_obs is None else _floats(out.final_obs)
+        extras = {"final_obs": final, "success": torch.from_numpy(out.engine.success)}
         return (
-            obs_t,
-            _floats(rewards),
-            torch.from_numpy(terminated),
-            torch.from_numpy(truncated),
+            obs,
+            _floats(out.rewards),
+            torch.from_numpy(out.terminated),
+            torch.from_numpy(out.truncated),
             extras,
         )
 

@@ -158,9 +158,10 @@ class BatchedVecEnv(VecEnv):
         if self._actions is None:
             raise RuntimeError("step_wait() without step_async()")
         actions, self._actions = self._actions, None
-        obs, rewards, terminated, truncated, infos = self.batch.step(actions)
-        success = np.fromiter((info.get("success", False) for info in infos), bool, self.num_envs)
-        dones = self.stats.step(rewards, terminated, truncated, success)
+        step = self.batch.step(actions)
+        obs, rewards, terminated, truncated = step[:4]
+        infos = step.infos()
+        dones = self.stats.step(rewards, terminated, truncated, step.success)
         finished = self.stats.pop()
         subenvs = self.subenvs
         for k, i in enumerate(finished.env_ids):
