@@ -211,3 +211,51 @@ def test_bad_actions_raise_and_change_nothing():
     np.testing.assert_array_equal(a.step(ok)[0], b.step(ok)[0])
     with pytest.raises(ValueError, match="seed"):
         a.reset(seed=[1, 2, 3])
+
+
+def _stacked_one_by_one(infos: list[dict], mask: np.ndarray) -> dict:
+    """Gymnasium's vector info layout built from one dict per sub-env (the reference)."""
+    out = {}
+    for key in sorted(set().union(*infos)):
+        values = [info.get(key) for info in infos]
+        has = np.array([key in info for info in infos]) & mask
+        if all(type(v) is bool or v is None for v in values):
+            arr = np.array([bool(v) for v in values]) & has
+        else:
+            arr = np.zeros(len(infos), dtype=object)
+            arr[has] = [values[i] for i in has.nonzero()[0]]
+        out[key], out["_" + key] = arr, has
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_infos_laid_out_from_flags_equal_those_stacked_one_by_one(seed):
+    from acl3d.envs.batched_vector import _stack_infos
+
+    rng = np.random.default_rng(seed)
+    n = 7
+    success, unstable = rng.random(n) < 0.5, rng.random(n) < 0.3 * (seed % 2)
+    mask = rng.random(n) < 0.8
+    special = {}
+    for i in rng.choice(n, size=3, replace=False).tolist():  # resets and finished episodes
+        special[i] = {"success": bool(rng.random() < 0.5)} if rng.random() < 0.5 else {}
+        if rng.random() < 0.7:
+            special[i]["curriculum"] = {"return": float(i)}
+    infos = [
+        {"success": bool(s)} | ({"unstable": True} if u else {}) for s, u in zip(success, unstable)
+    ]
+    if seed == 5:  # the only unstable sub-env is reset: no info holds "unstable"
+        unstable[:] = False
+        unstable[next(iter(special))] = True
+        infos = [{"success": bool(s)} for s in success]
+    for i, info in special.items():
+        infos[i] = info
+    flags = {"success": (success, np.ones(n, bool))}
+    if unstable.any():
+        flags["unstable"] = (unstable, unstable)
+    got = _stack_infos(n, mask, special, flags)
+    expected = _stacked_one_by_one(infos, mask)
+    assert sorted(got) == sorted(expected)
+    for key, value in expected.items():
+        assert got[key].dtype == value.dtype, key
+        assert [v for v in got[key]] == [v for v in value], key
