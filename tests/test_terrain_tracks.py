@@ -77,3 +77,21 @@ def test_unbuildable_values_name_parameter_and_range(task, name):
     with pytest.raises(ValueError, match=name) as err:
         check_buildable(task)
     assert "range" in str(err.value)
+
+
+def test_boxes_stamped_together_equal_boxes_stamped_one_by_one(gen):
+    from acl3d.terrain.tracks import _columns
+
+    rng = np.random.default_rng(4)
+    cell = gen.grid.cell
+    x0 = np.concatenate([rng.uniform(-6.0, 60.0, 40), [10.0, 10.0 + cell / 3, 20.0]])
+    x1 = np.concatenate([x0[:40] + rng.uniform(0.0, 3.0, 40), [10.0 + cell / 4, 12.0, 19.0]])
+    h = rng.uniform(0.0, 2.0, len(x0))  # overlapping, narrower than a cell, empty, off the grid
+    one_by_one = np.zeros_like(gen.x)
+    for a, b, top in zip(x0, x1, h):
+        cols = _columns(gen.grid, a, b)
+        np.maximum(one_by_one[cols], top, out=one_by_one[cols])
+    together = np.zeros_like(gen.x)
+    gen._stamp_boxes(together, list(zip(x0, x1, h)))
+    assert together.tobytes() == one_by_one.tobytes()
+    assert together.max() > 0

@@ -154,11 +154,19 @@ def _convex_upper_envelope(points: np.ndarray, x: np.ndarray) -> np.ndarray:
     return top
 
 
+def _column_range(grid: TrackGrid, x0, x1):
+    """(first, last) grid columns whose x lies in [x0, x1] (floats or arrays of them)."""
+    first = np.maximum(0, np.ceil((x0 - grid.x_min) / grid.cell - 1e-9).astype(np.int64))
+    last = np.minimum(
+        grid.ncol - 1, np.floor((x1 - grid.x_min) / grid.cell + 1e-9).astype(np.int64)
+    )
+    return first, last
+
+
 def _columns(grid: TrackGrid, x0: float, x1: float) -> slice:
     """Grid columns whose x lies in [x0, x1]."""
-    i0 = max(0, int(np.ceil((x0 - grid.x_min) / grid.cell - 1e-9)))
-    i1 = min(grid.ncol - 1, int(np.floor((x1 - grid.x_min) / grid.cell + 1e-9)))
-    return slice(i0, i1 + 1)
+    first, last = _column_range(grid, x0, x1)
+    return slice(int(first), int(last) + 1)
 
 
 class TrackGenerator:
@@ -168,9 +176,17 @@ class TrackGenerator:
         self.grid = grid
         self.x = grid.x
 
-    def _stamp_box(self, heights: np.ndarray, x0: float, x1: float, h: float) -> None:
-        cols = _columns(self.grid, x0, x1)
-        np.maximum(heights[cols], h, out=heights[cols])
+    def _stamp_boxes(self, heights: np.ndarray, boxes: list[tuple[float, float, float]]) -> None:
+        """Raise `heights` to each box (x0, x1, h) over its columns, all boxes in one pass (a
+        maximum: the order of stamping does not matter)."""
+        if not boxes:
+            return
+        x0, x1, h = np.array(boxes).T
+        first, last = _column_range(self.grid, x0, x1)
+        widths = np.maximum(last - first + 1, 0)
+        starts = np.cumsum(widths) - widths  # each box's offset among all stamped columns
+        cols = np.arange(widths.sum()) + np.repeat(first - starts, widths)
+        np.maximum.at(heights, cols, np.repeat(h, widths))
 
     def _stamp_polygon(self, heights: np.ndarray, polygon: np.ndarray) -> None:
         """Raise `heights` to the polygon's upper envelope where it covers the grid."""
@@ -197,26 +213,28 @@ class TrackGenerator:
         )
         x = start_pad * TERRAIN_STEP
         end = TERRAIN_LENGTH * TERRAIN_STEP
+        boxes: list[tuple[float, float, float]] = []  # stamped together at the end
         while x < end:
             kind = kinds[int(rng.integers(len(kinds)))] if len(kinds) > 1 else kinds[0]
             if kind == "stump_height":
-                x = self._stump(heights, x, task, rng)
+                x = self._stump(heights, boxes, x, task, rng)
             elif kind == "stump_seq":
                 x = self._stump_sequence(
-                    heights, x, np.asarray(task["stump_seq"], dtype=np.float64), rng
+                    boxes, x, np.asarray(task["stump_seq"], dtype=np.float64), rng
                 )
             else:
                 x = self._hexagon(heights, x, np.asarray(task["poly_shape"], dtype=np.float64), rng)
             x += spacing
+        self._stamp_boxes(heights, boxes)
         return np.minimum(heights, MAX_TERRAIN_HEIGHT)
 
-    def _stump(self, heights, x0, task, rng) -> float:
+    def _stump(self, heights, boxes, x0, task, rng) -> float:
         h = max(MIN_OBSTACLE, rng.normal(float(task["stump_height"]), NOISE_STD)) * TERRAIN_STEP
         w = TERRAIN_STEP
         if "stump_width" in task:
             w = max(MIN_OBSTACLE, rng.normal(float(task["stump_width"]), NOISE_STD)) * TERRAIN_STEP
         if "stump_rot" not in task:
-            self._stamp_box(heights, x0, x0 + w, h)
+            boxes.append((x0, x0 + w, h))
             return x0 + w
         corners = np.array([(0.0, 0.0), (0.0, h), (w, h), (w, 0.0)])
         angle = float(np.clip(rng.normal(float(task["stump_rot"]), NOISE_STD), 0.0, 2 * np.pi))
@@ -228,12 +246,12 @@ class TrackGenerator:
         self._stamp_polygon(heights, corners)
         return x0 + w
 
-    def _stump_sequence(self, heights, x0, seq, rng) -> float:
+    def _stump_sequence(self, boxes, x0, seq, rng) -> float:
         x = x0
         for h_mean, w_mean in seq.reshape(5, 2):
             h = max(MIN_OBSTACLE, rng.normal(h_mean, NOISE_STD)) * TERRAIN_STEP
             w = max(MIN_OBSTACLE, rng.normal(w_mean, NOISE_STD))  # metres, as the original
-            self._stamp_box(heights, x, x + w, h)
+            boxes.append((x, x + w, h))
             x += w
         return x
 
