@@ -157,6 +157,19 @@ def test_teacher_dump_without_duplicates_within_budget(tmp_path, episodes, budge
     assert write_teacher(tmp_path / "none", dest) is None
 
 
+@pytest.mark.parametrize("episodes", [300, 0])
+def test_a_teacher_dump_with_empty_histories_exports(tmp_path, episodes):
+    """A short run: no refit yet (empty per-refit lists), maybe no episode either."""
+    run, dest = tmp_path / "run", tmp_path / "out"
+    run.mkdir()
+    dest.mkdir()
+    _dump(run, 0, episodes)
+    written = write_teacher(run, dest, 48_000)
+    bk = read_teacher(dest)["teacher_bk"]
+    assert written["every"] == {} and len(bk["means"]) == 0
+    assert len(bk["tasks_alps"]) == episodes
+
+
 def test_the_shipped_results_stay_within_their_budget():
     total = sum(shipped_bytes(results.path(name)) for name in results.protocols())
     assert 0 < total < RESULTS_BUDGET

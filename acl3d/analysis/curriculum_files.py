@@ -199,11 +199,12 @@ def write_teacher(run: Path, dest: Path, budget: int = TEACHER_BUDGET) -> dict |
     kept = _compact({k: v for k, v in dump.items() if k not in DUPLICATED_RECORDS})
     histories = _histories(kept)
 
-    longest = max([len(v) for v in histories.values()] or [1])
+    longest = max([len(v) for v in histories.values()] + [1])
 
     def write(every: int):
         cap = -(-longest // every)  # entries kept per sequence; sequences of a length stay aligned
-        strides = {path: -(-len(sequence) // cap) for path, sequence in histories.items()}
+        # (an empty sequence, as a short run's refits, keeps stride 1)
+        strides = {path: max(1, -(-len(sequence) // cap)) for path, sequence in histories.items()}
         tree = {**kept, "teacher_bk": dict(kept.get("teacher_bk") or {})}
         for path, sequence in histories.items():
             parent, _, key = path.rpartition("/")
