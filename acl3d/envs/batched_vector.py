@@ -216,12 +216,18 @@ def _stack_infos(n: int, mask: np.ndarray, infos: dict[int, dict], flags=None) -
     values, (N,) mask of the infos holding the key)). A key is laid out when some info holds
     it; keys whose values are all bools (or absent) give bool arrays, others object arrays."""
     flags = flags or {}
+    out: dict = {}
+    if not infos:  # every info is the flags' (most steps)
+        for key, (values, held) in sorted(flags.items()):
+            if held.any():
+                has = held & mask
+                out[key], out["_" + key] = values & has, has
+        return out
     ids = np.fromiter(infos, np.int64, len(infos))
     given_rows = np.zeros(n, bool)
     given_rows[ids] = True
     keys = set().union(*infos.values())
     keys |= {key for key, (_, held) in flags.items() if (held & ~given_rows).any()}
-    out: dict = {}
     for key in sorted(keys):
         values, held = flags.get(key, (np.zeros(n, bool), np.zeros(n, bool)))
         given = [info.get(key) for info in infos.values()]
