@@ -154,19 +154,20 @@ def _convex_upper_envelope(points: np.ndarray, x: np.ndarray) -> np.ndarray:
     return top
 
 
-def _column_range(grid: TrackGrid, x0, x1):
-    """(first, last) grid columns whose x lies in [x0, x1] (floats or arrays of them)."""
+def _columns(grid: TrackGrid, x0: float, x1: float) -> slice:
+    """Grid columns whose x lies in [x0, x1]."""
+    i0 = max(0, int(np.ceil((x0 - grid.x_min) / grid.cell - 1e-9)))
+    i1 = min(grid.ncol - 1, int(np.floor((x1 - grid.x_min) / grid.cell + 1e-9)))
+    return slice(i0, i1 + 1)
+
+
+def _column_ranges(grid: TrackGrid, x0: np.ndarray, x1: np.ndarray):
+    """`_columns` of many intervals at once: their (first, last) columns, as arrays."""
     first = np.maximum(0, np.ceil((x0 - grid.x_min) / grid.cell - 1e-9).astype(np.int64))
     last = np.minimum(
         grid.ncol - 1, np.floor((x1 - grid.x_min) / grid.cell + 1e-9).astype(np.int64)
     )
     return first, last
-
-
-def _columns(grid: TrackGrid, x0: float, x1: float) -> slice:
-    """Grid columns whose x lies in [x0, x1]."""
-    first, last = _column_range(grid, x0, x1)
-    return slice(int(first), int(last) + 1)
 
 
 class TrackGenerator:
@@ -182,7 +183,7 @@ class TrackGenerator:
         if not boxes:
             return
         x0, x1, h = np.array(boxes).T
-        first, last = _column_range(self.grid, x0, x1)
+        first, last = _column_ranges(self.grid, x0, x1)
         widths = np.maximum(last - first + 1, 0)
         starts = np.cumsum(widths) - widths  # each box's offset among all stamped columns
         cols = np.arange(widths.sum()) + np.repeat(first - starts, widths)
