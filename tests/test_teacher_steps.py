@@ -168,25 +168,38 @@ def test_a_teacher_trains_the_same_inside_a_students_inference_mode(name, params
 
 
 def test_pending_proposals_match_as_the_whole_comparison_does():
-    """Candidates come from the first dimension; the matches are those of comparing every
-    dimension of every proposal (exactly, or within a tolerance per dimension)."""
+    """Candidates come from a hash of the task (the whole task, or the first dimension's bucket
+    of one tolerance's width); the oldest and newest matches are those of comparing every
+    dimension of every proposal (exactly, or within a tolerance per dimension), before and
+    after proposals go."""
     from acl3d.teachers.pending import PendingTasks
 
     rng = np.random.default_rng(0)
     tasks = rng.random((500, 3)).astype(np.float32).astype(np.float64)
     tasks[50:60, 0] = tasks[5, 0]  # candidates on the first dimension that differ elsewhere
     tasks[70] = tasks[5]
+    span = np.array([3.0, 6.0, 1.0])
+    tasks[80:90] = tasks[6]  # across neighbouring buckets, the older ones in the higher
+    tasks[80:90, 0] += np.linspace(2e-5, -2e-5, 10) * span[0]
+    for within in ((1.0, 0.0), (span, 1e-5), (1.0, 1e-4 * span)):
+        pending, kept = PendingTasks(3, *within), np.ones(len(tasks), bool)
+        for task in tasks:
+            pending.add(task, None)
+        for k in range(300):
+            query = tasks[rng.integers(500)] + (rng.random(3) - 0.5) * [0, 1e-6, 1e-4][k % 3]
+            if k % 7 == 0:
+                query = tasks[6].copy()
+                query[0] += (rng.random() - 0.5) * 5e-5 * span[0]
+            whole = (np.abs(tasks - query) / within[0] <= within[1]).all(axis=1) & kept
+            found = np.flatnonzero(whole)
+            assert pending.oldest(query) == (found[0] if len(found) else None)
+            assert pending.newest(query) == (found[-1] if len(found) else None)
+            if k % 3 == 0 and len(found):  # the oldest match goes, as a teacher pops it
+                gone = int(found[0])
+                np.testing.assert_array_equal(pending.pop(gone)[0], tasks[gone])
+                kept[gone] = False
+        assert [t.tolist() for t, _ in pending.items()] == tasks[kept].tolist()
     pending = PendingTasks(3)
     for task in tasks:
         pending.add(task, None)
-    span = np.array([3.0, 6.0, 1.0])
-    for k in range(300):
-        query = tasks[rng.integers(500)] + (rng.random(3) - 0.5) * [0, 1e-6, 1e-4][k % 3]
-        for within in ((None, 0.0), (span, 1e-5), (1.0, 1e-4 * span)):
-            whole = (
-                (tasks == query).all(axis=1)
-                if within[0] is None
-                else (np.abs(tasks - query) / within[0] <= within[1]).all(axis=1)
-            )
-            np.testing.assert_array_equal(pending.matches(query, *within), np.flatnonzero(whole))
-    assert list(pending.matches(tasks[5])) == [5, 70]
+    assert (pending.oldest(tasks[5]), pending.newest(tasks[5])) == (5, 70)

@@ -150,7 +150,7 @@ class GoalGAN(Teacher):
         self.dis_opt = torch.optim.RMSprop(self.discriminator.parameters(), lr=lr)
 
         self._queue: list[np.ndarray] = []  # repeats of the current goal still to hand out
-        self._pending = PendingTasks(self.dim)  # goal -> its successes so far
+        self._pending = PendingTasks(self.dim, 1.0, self._match_tol)  # goal -> its successes so far
         self._labelled_goals: list[np.ndarray] = []
         self._labels: list[float] = []
         self.success_buffer: list[np.ndarray] = []
@@ -246,12 +246,12 @@ class GoalGAN(Teacher):
 
     # ------------------------------------------------------------------ feedback
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
-        matches = self._pending.matches(task, 1.0, self._match_tol)
-        if len(matches):
-            outcomes = self._pending.payload(int(matches[0]))
+        proposal = self._pending.oldest(task)
+        if proposal is not None:
+            outcomes = self._pending.payload(proposal)
             outcomes.append(float(is_success))
             if len(outcomes) >= self.n_rollouts:
-                goal, _ = self._pending.pop(int(matches[0]))
+                goal, _ = self._pending.pop(proposal)
                 self._label(goal, float(np.mean(outcomes)))
         self.bk["episodes"].append(self.nb_episodes)
         if len(self._labels) >= self.update_size:

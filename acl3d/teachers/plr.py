@@ -36,6 +36,7 @@ actually replayed (dcd#11 always took index 0).
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from typing import Any
 
@@ -106,7 +107,8 @@ class RobustPLR(Teacher):
         self.max_returns = np.zeros(0)
         self.mean_returns = np.zeros(0)
         self.plays = np.zeros(0, dtype=np.int64)
-        self._pending = PendingTasks(self.dim)  # task -> (kind, level index or -1)
+        span = np.where(self.maxs > self.mins, self.maxs - self.mins, 1.0)
+        self._pending = PendingTasks(self.dim, span, MATCH_TOLERANCE)  # -> (kind, level or -1)
         self._edits: deque[np.ndarray] = deque()  # ACCEL: edited levels waiting to be played
         self._traces = StepTraces()  # each stream's running episode
         self._finished: deque[tuple[np.ndarray, np.ndarray]] = (
@@ -133,12 +135,27 @@ class RobustPLR(Teacher):
     def _new_level(self) -> np.ndarray:
         return self.uniform_task()
 
+    def _replay_cdf(self) -> tuple[np.ndarray, float]:
+        """(cumulative replay distribution, its total), what a replay draws from."""
+        p = self.replay_distribution()
+        return np.cumsum(p), p.sum()
+
     def _sample(self) -> np.ndarray:
+        return self._draw(self._replay_cdf)
+
+    def _sample_batch(self, n: int) -> np.ndarray:
+        """`_sample` n times, the replay distribution computed once: sampling changes no score
+        or play count, so every task of a batch replays from the same distribution."""
+        replay_cdf = functools.cache(self._replay_cdf)
+        return np.stack([self._draw(replay_cdf) for _ in range(n)])
+
+    def _draw(self, replay_cdf) -> np.ndarray:
+        """One proposal; `replay_cdf()` gives the replay distribution when a replay needs it."""
         if self._edits:
             task, kind, index = self._edits.popleft(), EDIT, -1
         elif self._can_replay() and self.rng.random() < self.replay_prob:
-            p = self.replay_distribution()
-            index = int(min(np.searchsorted(np.cumsum(p), self.rng.random() * p.sum()), len(p) - 1))
+            cdf, total = replay_cdf()
+            index = int(min(np.searchsorted(cdf, self.rng.random() * total), len(cdf) - 1))
             task, kind = self.levels[index].copy(), REPLAY
         else:
             task, kind, index = self._new_level(), NEW, -1
@@ -152,13 +169,8 @@ class RobustPLR(Teacher):
         episode. When the same vector is in flight more than once (ACCEL's `easy_task`), the
         latest proposal answers, so asking right after `sample_task()` gives that sample's own
         kind."""
-        matches = self._pending_matches(task)
-        return not len(matches) or self._pending.payload(int(matches[-1]))[0] != REPLAY
-
-    def _pending_matches(self, task: np.ndarray) -> np.ndarray:
-        """Indices of the pending proposals that `task` is (oldest first)."""
-        span = np.where(self.maxs > self.mins, self.maxs - self.mins, 1.0)
-        return self._pending.matches(task, span, MATCH_TOLERANCE)
+        latest = self._pending.newest(task)
+        return latest is None or self._pending.payload(latest)[0] != REPLAY
 
     def _non_exploratory_sample(self) -> np.ndarray:
         if not len(self.scores):
@@ -199,10 +211,10 @@ class RobustPLR(Teacher):
         return positive_value_loss(rewards, values, self.discount, self.gae_lambda)
 
     def _match_pending(self, task: np.ndarray) -> tuple[int, int]:
-        matches = self._pending_matches(task)
-        if not len(matches):
+        proposal = self._pending.oldest(task)
+        if proposal is None:
             return NEW, -1  # a task the teacher did not propose: treated as a new level
-        _, (kind, index) = self._pending.pop(int(matches[0]))
+        _, (kind, index) = self._pending.pop(proposal)
         return kind, index
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:

@@ -189,7 +189,7 @@ class SetterSolver(Teacher):
         )
         self.span = self.maxs - self.mins
         self._match_tol = 1e-4 * self.span + 1e-6
-        self._pending = PendingTasks(self.dim)  # task -> (unit goal, f)
+        self._pending = PendingTasks(self.dim, 1.0, self._match_tol)  # task -> (unit goal, f)
         self._buffer: list[tuple[np.ndarray, float, float]] = []  # unit goal, f, success
 
     # ------------------------------------------------------------------ sampling
@@ -223,9 +223,9 @@ class SetterSolver(Teacher):
 
     # ------------------------------------------------------------------ feedback
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
-        matches = self._pending.matches(task, 1.0, self._match_tol)
-        if len(matches):
-            _, (goal, f) = self._pending.pop(int(matches[0]))
+        proposal = self._pending.oldest(task)
+        if proposal is not None:
+            _, (goal, f) = self._pending.pop(proposal)
             self._buffer.append((goal, f, float(is_success)))
         self.bk["episodes"].append(self.nb_episodes)
         if (self.nb_episodes + 1) % self.update_frequency == 0 and self._buffer:

@@ -139,9 +139,9 @@ class TerrainLevels(Teacher):
         return self.clip(self.task_at((level + self.rng.random()) / self.nb_levels))
 
     def _episodic_update(self, task: np.ndarray, reward: float, is_success: bool) -> None:
-        matches = self._pending.matches(task)
-        if len(matches):
-            _, r = self._pending.pop(int(matches[0]))
+        proposal = self._pending.oldest(task)
+        if proposal is not None:
+            _, r = self._pending.pop(proposal)
             level = int(self.levels[r])
             if reward >= self.promote_return:
                 level += 1
