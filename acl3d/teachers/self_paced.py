@@ -237,10 +237,25 @@ class SelfPaced(Teacher):
 
     # ------------------------------------------------------------------ sampling
     def _sample(self) -> np.ndarray:
+        return self._draw(self._unpacked())
+
+    def _sample_batch(self, n: int) -> np.ndarray:
+        """`_sample` n times, the distribution unpacked once (it changes only at updates)."""
+        unpacked = self._unpacked()
+        return np.stack([self._draw(unpacked) for _ in range(n)])
+
+    def _unpacked(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(mean, Cholesky factor) of the free dimensions; None when every one is constant."""
+        if not self.k:
+            return None
+        mean, chol = self._unpack(torch.as_tensor(self.theta))
+        return mean.numpy(), chol.numpy()
+
+    def _draw(self, unpacked) -> np.ndarray:
         task = self.mins.copy()
-        if self.k:
-            m, chol = self._unpack(torch.as_tensor(self.theta))
-            task[self.free] = m.numpy() + chol.numpy() @ self.rng.standard_normal(self.k)
+        if unpacked is not None:
+            mean, chol = unpacked
+            task[self.free] = mean + chol @ self.rng.standard_normal(self.k)
         return self.clip(task)
 
     # ------------------------------------------------------------------ feedback
