@@ -37,8 +37,10 @@ class PendingTasks:
         self.dim = int(dim)
         self._span = np.broadcast_to(np.asarray(span, dtype=np.float64), (self.dim,)).copy()
         self._tolerance = np.broadcast_to(np.asarray(tolerance, np.float64), (self.dim,)).copy()
-        if np.any(self._span <= 0) or np.any(self._tolerance < 0):
-            raise ValueError(f"span={span!r}, tolerance={tolerance!r}; valid: span > 0, >= 0")
+        if np.any(self._span <= 0):
+            raise ValueError(f"span={span!r}; valid: values > 0")
+        if np.any(self._tolerance < 0):
+            raise ValueError(f"tolerance={tolerance!r}; valid: values >= 0")
         self._rule = list(zip(self._span.tolist(), self._tolerance.tolist()))  # as floats
         self._exact = not self._tolerance.any()
         self._width = float(self._tolerance[0] * self._span[0])  # a bucket, on dimension 0
