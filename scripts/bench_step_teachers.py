@@ -8,8 +8,9 @@ the finished episodes learnt, the resetting worlds' next tasks drawn in rounds),
 synthetic stream: stump-tracks' task space, observations of `--obs` dimensions, episodes ending
 at random (mean `--mean-episode` steps) or at the time limit. The critic is a fixed linear map
 (the student's forward pass is the student's cost). After `--warmup` steps (episodes of every
-length running), `--steps` steps are timed; printed: the teacher's milliseconds a step, and
-the episodes and tasks a step.
+length running), `--steps` steps are timed; printed: the teacher's milliseconds a step, the
+episodes and tasks a step, and the process's peak memory (of every teacher it ran so far: time
+one teacher to read its own).
 
     python scripts/bench_step_teachers.py [--worlds 4096] [--teachers robust-plr self-paced]
     python scripts/bench_step_teachers.py --against /tmp/acl3d-old --rounds 3
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -90,6 +92,7 @@ def measure(args) -> dict:
         out[teacher] = [1e3 * timed["teacher"] / args.steps] + [
             timed[k] / args.steps for k in ("episodes", "tasks")
         ]
+        out[teacher].append(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
     return out
 
 
@@ -132,14 +135,17 @@ def main() -> None:
         mine = [r[teacher] for r in results["this"]]
         line = (
             f"  {teacher:12s} teacher {statistics.median(m[0] for m in mine):6.2f} ms a step "
-            f"({mine[0][1]:.1f} episodes, {mine[0][2]:.1f} tasks a step)"
+            f"({mine[0][1]:.1f} episodes, {mine[0][2]:.1f} tasks a step; "
+            f"process peak {mine[0][3]:.2f} GB)"
         )
         if there:
             ratios = [
                 o[teacher][0] / m[teacher][0] for o, m in zip(results["other"], results["this"])
             ]
             old = statistics.median(o[teacher][0] for o in results["other"])
-            line += f"; {there}: {old:.2f} ms, old / new {statistics.median(ratios):.2f}x"
+            peak = results["other"][0][teacher][3]
+            line += f"; {there}: {old:.2f} ms, peak {peak:.2f} GB, old / new "
+            line += f"{statistics.median(ratios):.2f}x"
         print(line, flush=True)
 
 

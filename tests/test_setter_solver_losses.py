@@ -103,7 +103,9 @@ def test_judge_is_trained_on_the_raw_labels():
     for i, task in enumerate(tasks[:9]):
         teacher.episodic_update(task, 0.0, i == 0)
     goals = torch.as_tensor(
-        np.clip([b[0] for b in teacher._buffer] + [teacher._pending.items()[0][1][0]], 1e-4, 1 - 1e-4),
+        np.clip(
+            [b[0] for b in teacher._buffer] + [teacher._pending.items()[0][1][0]], 1e-4, 1 - 1e-4
+        ),
         dtype=torch.float32,
     )
     labels = torch.zeros(10, 1)

@@ -203,3 +203,36 @@ def test_pending_proposals_match_as_the_whole_comparison_does():
     for task in tasks:
         pending.add(task, None)
     assert (pending.oldest(tasks[5]), pending.newest(tasks[5])) == (5, 70)
+
+
+def test_running_episodes_kept_in_pages_come_back_whole():
+    """Robust PLR's running episodes, kept in pages of a shared pool, come back as a record of
+    every step would give them: streams stepping in any subset and order, episodes across many
+    pages, a checkpoint's state reloaded midway; pages in use are those of the running
+    episodes' steps."""
+    from acl3d.teachers.step_streams import StepTraces
+
+    rng = np.random.default_rng(0)
+    traces, reference, page = StepTraces(), {}, StepTraces.PAGE
+    for step in range(600):
+        streams = rng.permutation(40)[: rng.integers(1, 40)]
+        states = rng.normal(size=(len(streams), 3)).astype(np.float32)
+        rewards, dones = rng.normal(size=len(streams)), rng.random(len(streams)) < 0.01
+        ended = traces.add(streams, states, rewards, dones)
+        expected = []
+        for k, s in enumerate(streams.tolist()):
+            reference.setdefault(s, []).append((states[k], rewards[k]))
+            if dones[k]:
+                expected.append(reference.pop(s))
+        assert len(ended) == len(expected)
+        for (got_states, got_rewards), steps in zip(ended, expected):
+            np.testing.assert_array_equal(got_states, np.stack([st for st, _ in steps]))
+            np.testing.assert_array_equal(got_rewards, [r for _, r in steps])
+            assert got_states.dtype == np.float32
+        if step % 150 == 149:  # a checkpoint's round trip
+            state = traces.state()
+            traces = StepTraces()
+            traces.load_state(state)
+        in_use = (traces.pages >= 0).sum()
+        assert in_use == sum(-(-len(steps) // page) for steps in reference.values())
+    assert max(len(steps) for steps in reference.values()) > 3 * page

@@ -58,12 +58,22 @@ def _grown(array: np.ndarray, rows: int, columns: int | None = None) -> np.ndarr
 
 class StepTraces:
     """Each stream's running episode as (states, rewards), for Robust PLR's scores. States keep
-    the dtype they come in (float32 observations take half the memory of float64)."""
+    the dtype they come in (float32 observations take half the memory of float64).
+
+    Steps are stored in pages of `PAGE` steps drawn from one pool and handed back when their
+    episode ends, so memory follows the steps of the running episodes, not the number of
+    streams times the longest episode (4,096 worlds of 24 float32 observations, episodes of 500
+    steps on average: a peak of 0.3 GB, against 1.2 GB for per-stream rows as long as the
+    longest episode, grown by copying)."""
+
+    PAGE = 64
 
     def __init__(self):
         self.lengths = np.zeros(0, dtype=np.int64)
-        self.states = np.zeros((0, 1, 0), dtype=np.float32)
-        self.rewards = np.zeros((0, 1), dtype=np.float64)
+        self.pages = np.zeros((0, 1), dtype=np.int64)  # stream -> its pages in order, -1: none
+        self.states = np.zeros((0, self.PAGE, 0), dtype=np.float32)  # the pool
+        self.rewards = np.zeros((0, self.PAGE), dtype=np.float64)
+        self._free = np.zeros(0, dtype=np.int64)  # pool pages not in use, a stack
 
     def add(self, streams: np.ndarray, states: np.ndarray, rewards, dones) -> list:
         """One step per stream (checked inputs: `check_streams`, `check_states`); returns
@@ -71,41 +81,83 @@ class StepTraces:
         if not len(streams):
             return []
         at = self._fit(streams, states, 1)
-        self.states[streams, at] = states
-        self.rewards[streams, at] = rewards
+        page, slot = self.pages[streams, at // self.PAGE], at % self.PAGE
+        self.states[page, slot] = states
+        self.rewards[page, slot] = rewards
         self.lengths[streams] = at + 1
         ended = streams[np.asarray(dones, dtype=bool)]
-        out = [
-            (self.states[s, :n].copy(), self.rewards[s, :n].copy())
-            for s, n in zip(ended.tolist(), self.lengths[ended].tolist())
-        ]
-        self.lengths[ended] = 0
+        out = [self._episode(s) for s in ended.tolist()]
+        self._release(ended)
         return out
 
+    def _episode(self, stream: int) -> tuple[np.ndarray, np.ndarray]:
+        n = int(self.lengths[stream])
+        pages = self.pages[stream, : -(-n // self.PAGE)]
+        d = self.states.shape[2]
+        return self.states[pages].reshape(-1, d)[:n], self.rewards[pages].reshape(-1)[:n]
+
+    def _release(self, streams: np.ndarray) -> None:
+        """The streams' episodes forgotten, their pages back in the pool."""
+        pages = self.pages[streams]
+        self._free = np.concatenate((self._free, pages[pages >= 0]))
+        self.pages[streams] = -1
+        self.lengths[streams] = 0
+
     def _fit(self, streams: np.ndarray, states: np.ndarray, steps: int) -> np.ndarray:
-        """Room for `steps` more steps of `streams`; returns their current lengths."""
+        """Pages for `steps` more steps of `streams`; returns their current lengths."""
         d = states.shape[-1]
         if d != self.states.shape[2]:
             if self.lengths.any():
                 raise validation.fail("states", states.shape, f"(n, {self.states.shape[2]})")
-            self.states = np.zeros((len(self.states), self.states.shape[1], d), states.dtype)
+            self.states = np.zeros((len(self.states), self.PAGE, d), states.dtype)
         dtype = np.promote_types(self.states.dtype, states.dtype)
         if dtype != self.states.dtype:
             self.states = self.states.astype(dtype)
         rows = int(streams.max()) + 1
-        self.lengths = _grown(self.lengths, rows)
+        if rows > len(self.lengths):
+            rows = max(rows, 2 * len(self.lengths))
+            self.lengths = np.concatenate((self.lengths, np.zeros(rows - len(self.lengths), int)))
+            more = np.full((rows - len(self.pages), self.pages.shape[1]), -1)
+            self.pages = np.concatenate((self.pages, more))
         at = self.lengths[streams]
-        longest = int(at.max()) + steps
-        self.states = _grown(self.states, rows, longest)
-        self.rewards = _grown(self.rewards, rows, longest)
+        first, last = at // self.PAGE, (at + steps - 1) // self.PAGE
+        if last.max() >= self.pages.shape[1]:
+            wider = max(int(last.max()) + 1, 2 * self.pages.shape[1])
+            more = np.full((len(self.pages), wider - self.pages.shape[1]), -1)
+            self.pages = np.concatenate((self.pages, more), axis=1)
+        # each page the steps reach that the stream does not hold yet: the steps' first page
+        # unless they start inside it, and every page after
+        start = first + (at % self.PAGE != 0)
+        counts = np.maximum(last - start + 1, 0)
+        if counts.any():
+            owners = np.repeat(streams, counts)
+            offsets = np.cumsum(counts) - counts  # where each stream's new pages start
+            columns = np.repeat(start - offsets, counts) + np.arange(counts.sum())
+            self.pages[owners, columns] = self._take(int(counts.sum()))
         return at
 
+    def _take(self, k: int) -> np.ndarray:
+        """`k` pages from the pool (grown, doubling, when it has too few)."""
+        if k > len(self._free):
+            have = len(self.states)
+            grown = max(have + k - len(self._free), 2 * have, 16)
+            self.states = np.concatenate(
+                (self.states, np.zeros((grown - have, *self.states.shape[1:]), self.states.dtype))
+            )
+            self.rewards = np.concatenate((self.rewards, np.zeros((grown - have, self.PAGE))))
+            self._free = np.concatenate((self._free, np.arange(grown - 1, have - 1, -1)))
+        taken, self._free = (
+            self._free[len(self._free) - k :][::-1],
+            self._free[: len(self._free) - k],
+        )
+        return taken
+
     def state(self) -> dict:
-        return {
-            str(s): [self.states[s, :n].copy(), self.rewards[s, :n].tolist()]
-            for s, n in enumerate(self.lengths.tolist())
-            if n
-        }
+        out = {}
+        for s in np.flatnonzero(self.lengths).tolist():
+            states, rewards = self._episode(s)
+            out[str(s)] = [states, rewards.tolist()]
+        return out
 
     def load_state(self, streams: dict) -> None:
         self.__init__()
@@ -115,8 +167,9 @@ class StepTraces:
             states = states.astype(np.float32 if states.dtype == np.float32 else np.float64)
             states = states.reshape(n, -1)
             self._fit(stream, states, n)
-            self.states[stream[0], :n] = states
-            self.rewards[stream[0], :n] = rewards
+            steps = np.arange(n)
+            page, slot = self.pages[stream[0], steps // self.PAGE], steps % self.PAGE
+            self.states[page, slot], self.rewards[page, slot] = states, rewards
             self.lengths[stream[0]] = n
 
 
