@@ -237,26 +237,16 @@ class SelfPaced(Teacher):
 
     # ------------------------------------------------------------------ sampling
     def _sample(self) -> np.ndarray:
-        return self._draw(self._unpacked())
+        return self._sample_batch(1)[0]
 
     def _sample_batch(self, n: int) -> np.ndarray:
-        """`_sample` n times, the distribution unpacked once (it changes only at updates)."""
-        unpacked = self._unpacked()
-        return np.stack([self._draw(unpacked) for _ in range(n)])
-
-    def _unpacked(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(mean, Cholesky factor) of the free dimensions; None when every one is constant."""
-        if not self.k:
-            return None
-        mean, chol = self._unpack(torch.as_tensor(self.theta))
-        return mean.numpy(), chol.numpy()
-
-    def _draw(self, unpacked) -> np.ndarray:
-        task = self.mins.copy()
-        if unpacked is not None:
-            mean, chol = unpacked
-            task[self.free] = mean + chol @ self.rng.standard_normal(self.k)
-        return self.clip(task)
+        """n draws, the distribution unpacked once (it changes only at updates)."""
+        tasks = np.tile(self.mins, (n, 1))
+        if self.k:
+            mean, chol = (t.numpy() for t in self._unpack(torch.as_tensor(self.theta)))
+            for task in tasks:
+                task[self.free] = mean + chol @ self.rng.standard_normal(self.k)
+        return np.stack([self.clip(task) for task in tasks])
 
     # ------------------------------------------------------------------ feedback
     def _step_update(self, state, action, reward, next_state, done, stream: int) -> None:
