@@ -9,6 +9,7 @@ import pickle
 import numpy as np
 import pytest
 import torch
+from test_teachers_classic import FAST, NAMES
 
 from acl3d import envs
 from acl3d.curriculum_profile import CurriculumProfile
@@ -268,6 +269,34 @@ def test_periodical_samples_every_k_steps():
     assert len(samples) == 3 and samples[0].shape == (100, 4) and samples[0].dtype == np.float32
     assert records["periodical_steps"].tolist() == [1000, 2100, 5000]
     assert TeacherController("random", MIXED, 0).maybe_sample_periodically(10**9) is None
+
+
+SMALL_TORCH = {
+    "self-paced": {"update_frequency": 10, "update_offset": 0},
+    "goal-gan": FAST_GAN,
+    "setter-solver": {"update_frequency": 5, "setter_hidden_size": 8},
+}
+
+
+@pytest.mark.parametrize("name", [*NAMES, *SMALL_TORCH])
+def test_periodical_samples_leave_the_run_alone(name):
+    """Showing the curriculum draws from streams of its own: a run taking periodical samples
+    proposes what a run without them does, and the samples depend on the seed and step only."""
+    params = {**FAST, **SMALL_TORCH}[name]
+
+    def build(every: int) -> TeacherController:
+        return TeacherController(
+            name, STUMPS, 4, teacher_params=params, keep_periodical_task_samples=every
+        )
+
+    shown, plain, twin, later = build(100), build(0), build(100), build(100)
+    for c in (shown, plain, twin, later):
+        play(c, 60, seed=1)
+    samples = shown.maybe_sample_periodically(100)
+    assert samples.shape == (100, 2)
+    np.testing.assert_array_equal(samples, twin.maybe_sample_periodically(100))
+    assert not np.array_equal(samples, later.maybe_sample_periodically(200))
+    np.testing.assert_array_equal(play(shown, 30, seed=2), play(plain, 30, seed=2))
 
 
 def test_shuffled_controller_round_trips_tasks_to_the_teacher():

@@ -1,4 +1,5 @@
-"""Evaluation has no side effect on training, even with sampled (stochastic) actions.
+"""Evaluation and the curriculum's periodical samples have no side effect on training, even
+with sampled (stochastic) actions.
 
 Two runs with the same seed that differ only in their evaluation schedule train the same policy:
 the same episodes row for row and the same weights. Each evaluation draws from its own streams,
@@ -99,3 +100,13 @@ def test_evaluation_schedule_does_not_change_training(often, tmp_path):
     train(RUN, eval_every=512, eval_stochastic=False, steps=512, out=str(det))
     assert evaluations(det)[512] != got_evals[512]
     assert not np.array_equal(evaluations(det)[512], ref_evals[512])
+
+
+def test_a_shorter_budget_is_the_start_of_a_longer_one(often, tmp_path):
+    """Only the budget differs, and with it the default cadence of the periodical curriculum
+    samples (a tenth of the budget): the shorter run's episodes are the longer run's first."""
+    out = tmp_path / "shorter"
+    train(RUN, eval_every=256, steps=STEPS // 2, out=str(out))
+    short = (out / "episodes.csv").read_text().splitlines()
+    assert len(short) > 2
+    assert (often / "episodes.csv").read_text().splitlines()[: len(short)] == short

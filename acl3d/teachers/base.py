@@ -11,7 +11,8 @@ from __future__ import annotations
 import json
 from abc import ABC, abstractmethod
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -208,6 +209,24 @@ class Teacher(ABC):
 
     def is_non_exploratory_task_sampling_available(self) -> bool:
         return True
+
+    def non_exploratory_samples(self, n: int, seed: int) -> np.ndarray:
+        """`n` tasks ((n, dim) float32) as `non_exploratory_task_sampling` draws them, but from
+        random streams seeded with `seed` instead of the teacher's own: showing the curriculum
+        (a run's periodical samples) never changes what the teacher proposes next."""
+        n = validation.count("n", n)
+        with self._own_streams(validation.integer("seed", seed, 0)):
+            return np.stack([self.non_exploratory_task_sampling()["task"] for _ in range(n)])
+
+    @contextmanager
+    def _own_streams(self, seed: int) -> Iterator[None]:
+        """The teacher's random streams swapped for ones seeded with `seed`, then given back. A
+        teacher that draws from another stream besides `self.rng` extends this."""
+        saved, self.rng = self.rng, np.random.default_rng(seed)
+        try:
+            yield
+        finally:
+            self.rng = saved
 
     def plot_state(self) -> dict[str, Any] | None:
         """The current distribution for plots (`acl3d.teachers.plots`); None: tasks only."""

@@ -242,12 +242,10 @@ class TeacherController:
         k = self.keep_periodical_task_samples
         self._next_periodic = (int(total_steps) // k + 1) * k
         if self.teacher.is_non_exploratory_task_sampling_available():
-            tasks = np.stack(
-                [
-                    self.teacher.non_exploratory_task_sampling()["task"]
-                    for _ in range(NB_PERIODICAL_SAMPLES)
-                ]
-            )
+            # streams of their own, from the run's seed and the step, so a run's tasks do not
+            # depend on how often it shows its curriculum, and a resumed run draws the same
+            seed = np.random.SeedSequence([self.seed, int(total_steps)]).generate_state(1)[0]
+            tasks = self.teacher.non_exploratory_samples(NB_PERIODICAL_SAMPLES, int(seed))
             if self.shuffler is not None:
                 tasks = self.shuffler.forward(tasks)
         else:

@@ -41,9 +41,10 @@ from torch import nn
 
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile, easy_task
-from acl3d.teachers.base import RunFacts, Teacher
+from acl3d.teachers.base import RunFacts
 from acl3d.teachers.pending import PendingTasks
 from acl3d.teachers.torch_utils import (
+    TorchDrawsTeacher,
     check_positive,
     generator_state,
     load_generator_state,
@@ -64,7 +65,7 @@ class _LeakyReLU(nn.LeakyReLU):
         super().__init__(0.1)
 
 
-class GoalGAN(Teacher):
+class GoalGAN(TorchDrawsTeacher):
     """GoalGAN with TeachMyAgent's benchmark settings (see the module docstring)."""
 
     name = "goal-gan"

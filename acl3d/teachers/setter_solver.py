@@ -35,9 +35,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from acl3d.teachers.base import Teacher
 from acl3d.teachers.pending import PendingTasks
 from acl3d.teachers.torch_utils import (
+    TorchDrawsTeacher,
     check_positive,
     generator_state,
     linear,
@@ -149,7 +149,7 @@ class _Setter(nn.Module):
         return self._base_log_prob(x) + log_det
 
 
-class SetterSolver(Teacher):
+class SetterSolver(TorchDrawsTeacher):
     """Setter-Solver with TeachMyAgent's benchmark settings (see the module docstring)."""
 
     name = "setter-solver"

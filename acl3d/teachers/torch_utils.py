@@ -8,6 +8,8 @@ plain numpy arrays, so a saved teacher resumes bit-for-bit.
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -15,6 +17,7 @@ import torch
 from torch import nn
 
 from acl3d import validation
+from acl3d.teachers.base import Teacher
 
 
 def trains(method):
@@ -39,6 +42,21 @@ def check_positive(name: str, value, integer: bool = False, allow_zero: bool = F
 
 def seeded_generator(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(int(seed))
+
+
+class TorchDrawsTeacher(Teacher):
+    """A teacher that draws from a `torch.Generator`, `self.gen`, besides `self.rng`."""
+
+    gen: torch.Generator
+
+    @contextmanager
+    def _own_streams(self, seed: int) -> Iterator[None]:
+        saved, self.gen = self.gen, seeded_generator(seed)
+        try:
+            with super()._own_streams(seed):
+                yield
+        finally:
+            self.gen = saved
 
 
 def linear(n_in: int, n_out: int, gen: torch.Generator, gain: float = 1.0) -> nn.Linear:
