@@ -246,7 +246,7 @@ class SelfPaced(Teacher):
             mean, chol = (t.numpy() for t in self._unpack(torch.as_tensor(self.theta)))
             for task in tasks:
                 task[self.free] = mean + chol @ self.rng.standard_normal(self.k)
-        return np.stack([self.clip(task) for task in tasks])
+        return self.clip(tasks)
 
     # ------------------------------------------------------------------ feedback
     def _step_update(self, state, action, reward, next_state, done, stream: int) -> None:
