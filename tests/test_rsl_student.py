@@ -234,6 +234,39 @@ def test_presets_and_checks():
         presets.hyperparameters("fast", 16, {"hidden_dims": [0]})
 
 
+def test_min_noise_std_is_checked_against_the_initial_noise():
+    assert presets.hyperparameters("fast", 16, {"min_noise_std": 0.1})["min_noise_std"] == 0.1
+    with pytest.raises(ValueError, match=r"student_params\['min_noise_std'\]=-0.1"):
+        presets.hyperparameters("fast", 16, {"min_noise_std": -0.1})
+    with pytest.raises(ValueError, match=r"min_noise_std'\]=1.0.*\[0, init_noise_std\)"):
+        presets.hyperparameters("fast", 16, {"min_noise_std": 1.0})
+
+
+@pytest.mark.parametrize("floor", [0.0, 0.1])
+def test_the_action_noise_stays_above_its_floor(floor, tmp_path):
+    """A std the updates drove below `min_noise_std` samples, scores and saves at the floor;
+    without a floor it samples at its own value."""
+    from acl3d.training.torch_student.rsl_ppo import RslPPO
+
+    n, obs_size = 4096, 3
+    params = presets.hyperparameters("fast", n, {"min_noise_std": floor})
+    torch.manual_seed(0)
+    student = RslPPO(params, obs_size, 2, n, "cpu", -10 * torch.ones(2), 10 * torch.ones(2))
+    with torch.no_grad():
+        student.alg.actor.distribution.std_param.fill_(0.01)
+    obs = torch.zeros(n, obs_size)
+    with torch.inference_mode():
+        spread = student.act(obs).std(0)
+    assert torch.allclose(spread, torch.full((2,), max(floor, 0.01)), rtol=0.05)
+    student.save_policy(tmp_path / "policy.zip")
+    saved = SavedPolicy(tmp_path / "policy.zip")
+    assert saved.spec["min_noise_std"] == floor
+    torch.manual_seed(1)
+    sampled = torch.as_tensor(saved(obs.numpy(), deterministic=False))
+    mean = torch.as_tensor(saved(obs.numpy()))
+    assert torch.allclose((sampled - mean).std(0), torch.full((2,), max(floor, 0.01)), rtol=0.05)
+
+
 def test_each_student_gets_its_own_default_number_of_envs(tmp_path):
     """16 envs fill 2 cores for SB3; rsl-ppo trains fastest on 64 CPU worlds and fills a GPU
     from 4,096. A run records the number, so a later change of default never changes it."""

@@ -16,6 +16,9 @@ normalisation) and adapt the rollout length to how many worlds a machine runs:
 * `benchmark` (a GPU, thousands of worlds): rsl_rl's 24 steps per world (at least 20,000 steps
   per update, TeachMyAgent's PPO batch, on few worlds) and [256, 128, 64].
 
+`min_noise_std` puts a floor under the learned action std (rsl_rl's `std_range`): sampling,
+the entropy and the KL of the adaptive learning rate all see the std clamped to it.
+
 Rewards are divided by a running standard deviation of the discounted return (as the SB3
 students' VecNormalize does), since the tracks' fall penalty of -100 dwarfs a step's reward.
 """
@@ -47,6 +50,7 @@ def _common() -> dict[str, Any]:
         "max_grad_norm": 1.0,
         "use_clipped_value_loss": True,
         "init_noise_std": 1.0,
+        "min_noise_std": 0.0,
         "activation": "elu",
         "normalize_rewards": True,
     }
@@ -77,12 +81,18 @@ def _check(params: dict, n_envs: int) -> None:
     name = "student_params[{!r}]".format
     for key in ("learning_rate", "clip_param", "max_grad_norm", "init_noise_std", "desired_kl"):
         check.positive(name(key), params[key])
-    for key in ("value_loss_coef", "entropy_coef"):
+    for key in ("value_loss_coef", "entropy_coef", "min_noise_std"):
         check.positive(name(key), params[key], allow_zero=True)
     for key in ("gamma", "lam"):
         check.real(name(key), params[key], 0.0, 1.0)
     for key in ("num_learning_epochs", "num_mini_batches"):
         check.integer(name(key), params[key], 1, 10_000)
+    if params["min_noise_std"] >= params["init_noise_std"]:
+        raise check.fail(
+            name("min_noise_std"),
+            params["min_noise_std"],
+            f"[0, init_noise_std) = [0, {params['init_noise_std']})",
+        )
     check.integer(name("num_steps_per_env"), params["num_steps_per_env"], 1, MAX_ROLLOUT)
     for key in ("use_clipped_value_loss", "normalize_rewards"):
         check.flag(name(key), params[key])

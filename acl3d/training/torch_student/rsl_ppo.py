@@ -43,7 +43,12 @@ def _models(spec: dict, num_envs: int, device) -> tuple[MLPModel, MLPModel, Tens
     """The actor and critic of `spec` (sizes, hidden dims, activation, initial noise)."""
     obs = _obs(torch.zeros(num_envs, spec["observation_size"], device=device))
     layers = dict(hidden_dims=list(spec["hidden_dims"]), activation=spec["activation"])
-    dist = {"class_name": "GaussianDistribution", "init_std": spec["init_noise_std"]}
+    dist = {
+        "class_name": "GaussianDistribution",
+        "init_std": spec["init_noise_std"],
+        # a floor under the action noise; policy files saved before it existed have none
+        "std_range": (spec.get("min_noise_std", 0.0), float("inf")),
+    }
     actor = MLPModel(
         obs, _GROUPS, "actor", spec["action_size"], **layers, obs_normalization=True,
         distribution_cfg=dist,
@@ -109,7 +114,10 @@ class RslPPO:
             "student": NAME,
             "observation_size": int(observation_size),
             "action_size": int(action_size),
-            **{k: params[k] for k in ("hidden_dims", "activation", "init_noise_std")},
+            **{
+                k: params[k]
+                for k in ("hidden_dims", "activation", "init_noise_std", "min_noise_std")
+            },
         }
         self.num_envs = int(num_envs)
         self.reinitialise()
