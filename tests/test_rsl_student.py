@@ -258,6 +258,7 @@ def test_the_action_noise_stays_above_its_floor(floor, tmp_path):
     with torch.inference_mode():
         spread = student.act(obs).std(0)
     assert torch.allclose(spread, torch.full((2,), max(floor, 0.01)), rtol=0.05)
+    assert student.action_std == pytest.approx(max(floor, 0.01))  # what TensorBoard logs
     student.save_policy(tmp_path / "policy.zip")
     saved = SavedPolicy(tmp_path / "policy.zip")
     assert saved.spec["min_noise_std"] == floor

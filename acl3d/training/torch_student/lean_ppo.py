@@ -104,7 +104,7 @@ class LeanPPO(PPO):
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """Sampled actions for (N, obs) observations; the step is stored as rsl_rl stores it."""
         mean = _forward(self.actor_layers, self.actor.obs_normalizer.forward(obs))
-        std = self._action_std().expand_as(mean)
+        std = self.action_std().expand_as(mean)
         actions = torch.normal(mean, std)  # `Normal(mean, std).sample()`: the same draws
         st, i = self.storage, self.storage.step
         self.observations[i].copy_(obs)
@@ -113,7 +113,7 @@ class LeanPPO(PPO):
         st.distribution_params[1][i].copy_(std)
         return actions
 
-    def _action_std(self) -> torch.Tensor:
+    def action_std(self) -> torch.Tensor:
         """The Gaussian's std, as `GaussianDistribution.update` computes it (scalar type)."""
         distribution = self.actor.distribution
         return distribution.std_param.clamp(*distribution.std_range)

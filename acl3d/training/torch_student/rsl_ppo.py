@@ -199,7 +199,8 @@ class RslPPO:
 
     @property
     def action_std(self) -> float:
-        return float(self.alg.actor.distribution.std_param.detach().mean())
+        """The mean std the actions are sampled with (the learned one, at least its floor)."""
+        return float(self.alg.action_std().detach().mean())
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         """V(s) of raw observations (the critic normalises them itself)."""
