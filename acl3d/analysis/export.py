@@ -16,6 +16,7 @@ import datetime
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -115,11 +116,19 @@ def _curriculum_files(run: Path, dest: Path) -> dict[str, dict]:
     return {dest.name: strides} if strides else {}
 
 
-def export_campaign(campaign_dir, out, protocol: str, planned_labels=None) -> list[str]:
+def export_campaign(
+    campaign_dir, out, protocol: str, planned_labels=None, add: bool = False, spec=None
+) -> list[str]:
     """Write the finished runs under `campaign_dir` into `out` in the committed form; returns
     the exported run names. Unfinished runs are left out (named in protocol.yaml), and so are
     the runs it planned: `planned_labels` (every planned run's labels, e.g. the protocol's
-    whole spec for a campaign run a few cells at a time), else its manifest's runs."""
+    whole spec for a campaign run a few cells at a time), else its manifest's runs.
+
+    `spec`: the campaign spec recorded (default: the manifest's). `add`: keep the runs already
+    exported in `out` that this campaign did not finish, so a protocol grows across machines
+    and sessions a few cells at a time; refused unless `out` is an export of `protocol`. The
+    caller checks that both ran one spec and passes the spec of both (`acl3d campaign export
+    --add` does, with `acl3d.campaign.runner.merged_spec`)."""
     if not isinstance(protocol, str) or not protocol or os.sep in protocol:
         raise ValueError(f"protocol must be a name like 'stump-v1', got {protocol!r}")
     root, out = Path(campaign_dir), Path(out)
@@ -130,44 +139,50 @@ def export_campaign(campaign_dir, out, protocol: str, planned_labels=None) -> li
     names = [r.path.name for r in finished]
     if len(set(names)) != len(names):
         raise ValueError(f"run folder names repeat under {str(root)!r}: they name the exports")
-    if out.exists():
-        shutil.rmtree(out)  # an export replaces the previous one of that protocol as a whole
-    out.mkdir(parents=True)
-    environments, thinned, machines = [], {}, set()
+    manifest = next(root.rglob("campaign.yaml"), None)
+    campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
+    earlier = earlier_export(out, protocol) if add else {}
+    kept = [name for name in earlier.get("runs", []) if name not in names]
+    with tempfile.TemporaryDirectory(dir=out.parent if out.parent.exists() else None) as stage:
+        for name in kept:  # out is replaced as a whole: the runs kept wait beside it
+            shutil.copytree(out / name, Path(stage) / name)
+        if out.exists():
+            shutil.rmtree(out)
+        out.mkdir(parents=True)
+        thinned = {k: v for k, v in (earlier.get("thinned") or {}).items() if k in kept}
+        for run in finished:
+            thinned.update(_export_run(run.path, out / run.path.name))
+        for name in kept:
+            shutil.move(Path(stage) / name, out / name)
+    every = sorted(names + kept)
+    environments, machines = [], set()
     resumed: dict[str, int] = {}  # run -> times it was interrupted and resumed
     dirty: list[str] = []  # runs with a segment started from a tree with uncommitted changes
-    for run in finished:
-        dest = out / run.path.name
-        dest.mkdir()
-        config = _config(run.path)
+    for name in every:  # from the exported folders, so runs kept and new are read alike
+        config = yaml.safe_load((out / name / "config.yaml").read_text()) or {}
         environments.append(config.get("environment", {}))
-        (dest / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-        shutil.copyfile(run.path / "evals.csv", dest / "evals.csv")
-        shutil.copyfile(run.path / "status.json", dest / "status.json")
-        _eval_tasks(run.path, dest)
-        steps = int(config.get("resolved", {}).get("steps") or config["config"]["steps"])
-        _episodes_summary(run.path, steps, dest)
-        thinned.update(_curriculum_files(run.path, dest))
-        segments = provenance.load(run.path) or []
+        segments = provenance.load(out / name) or []
         for segment in segments:
             machines.add(f"{segment.get('cpu_model')} · {segment.get('device')}")
         if provenance.interruptions(segments):
-            resumed[run.path.name] = provenance.interruptions(segments)
+            resumed[name] = provenance.interruptions(segments)
         if any(segment.get("dirty") for segment in segments):
-            dirty.append(run.path.name)
-    manifest = next(root.rglob("campaign.yaml"), None)
-    campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
+            dirty.append(name)
     planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
     if planned_labels is None:
         planned_labels = [entry.get("labels") or {} for entry in campaign.get("runs", [])]
     for labels in planned_labels:
         teacher = str(labels.get("teacher"))
         planned[teacher] = planned.get(teacher, 0) + 1
+    for teacher, count in (earlier.get("planned_runs") or {}).items():
+        planned[teacher] = max(planned.get(teacher, 0), count)
+    left_out = {r.path.name for r in runs if r.status != "finished"}
+    left_out |= set(earlier.get("left_out") or [])
     doc = {
         "protocol": protocol,
         "exported": datetime.date.today().isoformat(),
-        "runs": names,
-        "left_out": sorted(r.name for r in runs if r.status != "finished"),
+        "runs": names + kept,
+        "left_out": sorted(left_out - set(every)),
         "hardware": {
             "platform": sorted({e.get("platform", "?") for e in environments}),
             "python": sorted({e.get("python", "?") for e in environments}),
@@ -181,7 +196,35 @@ def export_campaign(campaign_dir, out, protocol: str, planned_labels=None) -> li
         "bytes": shipped_bytes(out),  # the runs' files, before this one
         "thinned": thinned,
         "planned_runs": planned,
-        "spec": campaign.get("spec"),
+        "spec": campaign.get("spec") if spec is None else spec,
     }
     (out / "protocol.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    return names
+    return names + kept
+
+
+def _export_run(run: Path, dest: Path) -> dict[str, dict]:
+    """One finished run in the committed form; returns what its budgets thinned."""
+    dest.mkdir()
+    config = _config(run)
+    (dest / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    shutil.copyfile(run / "evals.csv", dest / "evals.csv")
+    shutil.copyfile(run / "status.json", dest / "status.json")
+    _eval_tasks(run, dest)
+    steps = int(config.get("resolved", {}).get("steps") or config["config"]["steps"])
+    _episodes_summary(run, steps, dest)
+    return _curriculum_files(run, dest)
+
+
+def earlier_export(out, protocol: str) -> dict:
+    """The protocol.yaml of the export in `out` that runs are added to, checked to be one of
+    `protocol`."""
+    out = Path(out)
+    doc_path = out / "protocol.yaml"
+    if not doc_path.exists():
+        raise ValueError(f"add: {str(out)!r} holds no export to add runs to (no protocol.yaml)")
+    doc = yaml.safe_load(doc_path.read_text()) or {}
+    if doc.get("protocol") != protocol:
+        raise ValueError(
+            f"add: {str(out)!r} is an export of protocol {doc.get('protocol')!r}, not {protocol!r}"
+        )
+    return doc

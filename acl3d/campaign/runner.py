@@ -74,7 +74,7 @@ class CampaignDir:
             changed = sorted(
                 {name for name, _ in _comparable(started) - _comparable(doc["runs"]) if name in new}
             )
-            merged = _merged_spec(old["spec"], doc["spec"]) if kept else doc["spec"]
+            merged = merged_spec(old["spec"], doc["spec"]) if kept else doc["spec"]
             if changed or merged is None:
                 names = changed or [r["name"] for r in kept]
                 raise ValueError(
@@ -147,7 +147,7 @@ def check_environments(runs: list[RunSpec]) -> None:
             raise ValueError(f"run {run.name}: {exc}") from None
 
 
-def _merged_spec(old: dict, new: dict) -> dict | None:
+def merged_spec(old: dict, new: dict) -> dict | None:
     """The spec of both invocations when they select cells of one campaign (the same name,
     base and grid): the cells and seeds of either, under the new spec's exclusions (a campaign
     may grow by cells it used to exclude; `prepare` refuses one that would exclude started

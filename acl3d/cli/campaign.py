@@ -39,6 +39,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     export.add_argument(
         "--out", help="destination (default: acl3d/results/PROTOCOL of this acl3d, replaced)"
     )
+    export.add_argument(
+        "--add",
+        action="store_true",
+        help="keep the runs already exported there that this campaign lacks (the same protocol "
+        "and spec, other cells or seeds: a protocol grown across machines)",
+    )
 
 
 def _scaling_options(p: argparse.ArgumentParser) -> None:
@@ -201,8 +207,8 @@ def _export(args) -> int:
     from pathlib import Path
 
     from acl3d import results
-    from acl3d.analysis.export import export_campaign
-    from acl3d.campaign.runner import CampaignDir
+    from acl3d.analysis.export import earlier_export, export_campaign
+    from acl3d.campaign.runner import CampaignDir, merged_spec
     from acl3d.campaign.spec import builtin_names, load_spec
 
     out = Path(args.out) if args.out else Path(results.__file__).parent / args.protocol
@@ -213,7 +219,18 @@ def _export(args) -> int:
     if args.protocol in builtin_names() and ran == args.protocol:
         planned = [run.labels for run in load_spec(args.protocol).expand()]
     _check_export_out(args, out, manifest, shipped=not args.out)
-    names = export_campaign(args.dir, out, args.protocol, planned)
+    spec = None  # the manifest's
+    if args.add:
+        earlier = (earlier_export(out, args.protocol).get("spec")) or {}
+        spec = merged_spec(earlier, manifest.get("spec") or {})
+        if spec is None:
+            differ = [k for k in ("name", "base", "grid")
+                      if earlier.get(k) != (manifest.get("spec") or {}).get(k)]  # fmt: skip
+            raise ValueError(
+                f"--add: the runs in {str(out)!r} were made under another spec than campaign "
+                f"{args.dir!r} (its {', '.join(differ)} differ); export to another --out"
+            )
+    names = export_campaign(args.dir, out, args.protocol, planned, add=args.add, spec=spec)
     print(f"{len(names)} finished runs exported to {out}")
     return 0
 
