@@ -1,5 +1,5 @@
-"""The versioned reference protocols (stump-v1, parkour-walker-v1, and v2 on the torch-native
-student): complete, pinned, buildable."""
+"""The versioned reference protocols (stump-v1, parkour-walker-v1, v2 and stump-rsl on the
+torch-native student): complete, pinned, buildable."""
 
 from __future__ import annotations
 
@@ -32,6 +32,8 @@ PROTOCOLS = {
     "parkour-walker-v1": {"random", "alp-gmm", "covar-gmm", "riac"},
     "stump-v2": STUMP_TEACHERS,  # those that learn from every step included
     "parkour-walker-v2": {"random", "alp-gmm", "covar-gmm", "riac", "terrain-levels"},
+    "stump-rsl": {"random", "alp-gmm", "terrain-levels", "oracle"},
+    "stump-rsl-10m": {"random", "alp-gmm"},
 }
 
 
@@ -81,3 +83,19 @@ def test_v2_specs_pass_the_checks_a_run_makes(name):
     spec = load_spec(name)
     check_runs(spec.expand(), on_this_machine=False)
     check_runs(spec.scaled(sets={"device": "cpu"}).expand())
+
+
+def test_stump_rsl_10m_is_stump_rsl_at_five_times_the_budget_with_the_noise_floor():
+    """The same task space, test grid, body, worlds and student, Random and ALP-GMM as pinned
+    in stump-rsl; only the budget, its evaluation and sampling cadence and the floor differ."""
+    short, long = load_spec("stump-rsl"), load_spec("stump-rsl-10m")
+    changed = {"steps": 10_000_000, "eval_every": 2_000_000, "periodical_samples_every": 1_000_000}
+    assert {k: long.base[k] for k in changed} == changed
+    assert {k: v for k, v in long.base.items() if k not in changed and k != "student_params"} == {
+        k: v for k, v in short.base.items() if k not in changed and k != "student_params"
+    }
+    params = dict(short.base["student_params"], min_noise_std=0.3)
+    assert long.base["student_params"] == params
+    assert long.grid["teacher"] == {t: short.grid["teacher"][t] for t in ("random", "alp-gmm")}
+    assert list(long.seeds) == list(range(8))
+    check_runs(long.expand())
