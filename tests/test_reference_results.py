@@ -132,7 +132,13 @@ def _shift_test_set(run: Path) -> None:
 def test_unknown_reference_names_the_shipped_protocols(tmp_path):
     with pytest.raises(ValueError, match="not a shipped protocol"):
         analyze_against(NEW, "stump-v0", tmp_path / "r", "mean_return", 200)
-    assert set(results.protocols()) <= {"stump-v1", "parkour-walker-v1", "stump-v2", "stump-rsl"}
+    assert set(results.protocols()) <= {
+        "stump-v1",
+        "parkour-walker-v1",
+        "stump-v2",
+        "stump-rsl",
+        "stump-rsl-10m",
+    }
 
 
 def test_export_of_a_real_run(tmp_path):
