@@ -12,6 +12,7 @@ import yaml
 
 from acl3d import provenance
 from acl3d.analysis.curriculum_files import shipped_bytes
+from acl3d.analysis.export import export_campaign
 from acl3d.cli import main
 
 SPEC = {"name": "mini", "base": {"steps": 256, "n_envs": 1}, "seeds": [0], "only": {},
@@ -98,3 +99,16 @@ def test_add_needs_an_export_of_the_same_protocol(tmp_path, capsys, trained_run)
     assert main(["campaign", "export", str(camp), "--protocol", "mini-2", "--out", str(other)]) == 0
     assert _export(camp, other, "--add") == 2
     assert "an export of protocol 'mini-2', not 'mini'" in capsys.readouterr().err
+
+
+def test_an_export_that_fails_on_the_way_leaves_the_earlier_one_as_it_was(tmp_path, trained_run):
+    out = tmp_path / "exported"
+    assert _export(_campaign(tmp_path / "a", trained_run, 0), out) == 0
+    before = _tree(out)
+    broken = _campaign(tmp_path / "b", trained_run, 1)
+    (broken / "runs" / "random__s1" / "evals_tasks.csv").unlink()  # read after others are written
+    for add in (False, True):
+        with pytest.raises(FileNotFoundError):
+            export_campaign(broken, out, "mini", add=add, spec=SPEC)
+        assert _tree(out) == before
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "exported"]

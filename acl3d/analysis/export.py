@@ -143,46 +143,61 @@ def export_campaign(
     campaign = (yaml.safe_load(manifest.read_text()) or {}) if manifest else {}
     earlier = earlier_export(out, protocol) if add else {}
     kept = [name for name in earlier.get("runs", []) if name not in names]
-    with tempfile.TemporaryDirectory(dir=out.parent if out.parent.exists() else None) as stage:
-        for name in kept:  # out is replaced as a whole: the runs kept wait beside it
-            shutil.copytree(out / name, Path(stage) / name)
-        if out.exists():
-            shutil.rmtree(out)
-        out.mkdir(parents=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # built whole beside `out`, then swapped in: a failure on the way leaves `out` as it was
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.name}-") as stage:
+        new = Path(stage) / "export"
+        new.mkdir()
+        for name in kept:
+            shutil.copytree(out / name, new / name)
         thinned = {k: v for k, v in (earlier.get("thinned") or {}).items() if k in kept}
         for run in finished:
-            thinned.update(_export_run(run.path, out / run.path.name))
-        for name in kept:
-            shutil.move(Path(stage) / name, out / name)
-    every = sorted(names + kept)
+            thinned.update(_export_run(run.path, new / run.path.name))
+        if planned_labels is None:
+            planned_labels = [entry.get("labels") or {} for entry in campaign.get("runs", [])]
+        planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
+        for labels in planned_labels:
+            teacher = str(labels.get("teacher"))
+            planned[teacher] = planned.get(teacher, 0) + 1
+        for teacher, count in (earlier.get("planned_runs") or {}).items():
+            planned[teacher] = max(planned.get(teacher, 0), count)
+        left_out = {r.path.name for r in runs if r.status != "finished"}
+        left_out = (left_out | set(earlier.get("left_out") or [])) - set(names + kept)
+        doc = {
+            "protocol": protocol,
+            "exported": datetime.date.today().isoformat(),
+            "runs": names + kept,
+            "left_out": sorted(left_out),
+            **_runs_record(new, names + kept),
+            "thinned": thinned,
+            "planned_runs": planned,
+            "spec": campaign.get("spec") if spec is None else spec,
+        }
+        (new / "protocol.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+        if out.exists():
+            out.rename(Path(stage) / "replaced")
+        new.rename(out)
+    return names + kept
+
+
+def _runs_record(folder: Path, names: list[str]) -> dict:
+    """protocol.yaml's record of the runs exported in `folder` (machines, versions, resumes,
+    bytes), read from their exported config.yaml and provenance.json, so that runs kept from
+    an earlier export count as the new ones do."""
     environments, machines = [], set()
     resumed: dict[str, int] = {}  # run -> times it was interrupted and resumed
     dirty: list[str] = []  # runs with a segment started from a tree with uncommitted changes
-    for name in every:  # from the exported folders, so runs kept and new are read alike
-        config = yaml.safe_load((out / name / "config.yaml").read_text()) or {}
+    for name in sorted(names):
+        config = yaml.safe_load((folder / name / "config.yaml").read_text()) or {}
         environments.append(config.get("environment", {}))
-        segments = provenance.load(out / name) or []
+        segments = provenance.load(folder / name) or []
         for segment in segments:
             machines.add(f"{segment.get('cpu_model')} · {segment.get('device')}")
         if provenance.interruptions(segments):
             resumed[name] = provenance.interruptions(segments)
         if any(segment.get("dirty") for segment in segments):
             dirty.append(name)
-    planned: dict[str, int] = {}  # runs per teacher the campaign was to make (after exclude)
-    if planned_labels is None:
-        planned_labels = [entry.get("labels") or {} for entry in campaign.get("runs", [])]
-    for labels in planned_labels:
-        teacher = str(labels.get("teacher"))
-        planned[teacher] = planned.get(teacher, 0) + 1
-    for teacher, count in (earlier.get("planned_runs") or {}).items():
-        planned[teacher] = max(planned.get(teacher, 0), count)
-    left_out = {r.path.name for r in runs if r.status != "finished"}
-    left_out |= set(earlier.get("left_out") or [])
-    doc = {
-        "protocol": protocol,
-        "exported": datetime.date.today().isoformat(),
-        "runs": names + kept,
-        "left_out": sorted(left_out - set(every)),
+    return {
         "hardware": {
             "platform": sorted({e.get("platform", "?") for e in environments}),
             "python": sorted({e.get("python", "?") for e in environments}),
@@ -193,13 +208,8 @@ def export_campaign(
         "git_commits": sorted({str(e.get("git_commit")) for e in environments}),
         "resumed": resumed,  # from each run's provenance.json: reviewers see them at a glance
         "dirty_tree": dirty,
-        "bytes": shipped_bytes(out),  # the runs' files, before this one
-        "thinned": thinned,
-        "planned_runs": planned,
-        "spec": campaign.get("spec") if spec is None else spec,
+        "bytes": shipped_bytes(folder),  # the runs' files, before protocol.yaml
     }
-    (out / "protocol.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-    return names + kept
 
 
 def _export_run(run: Path, dest: Path) -> dict[str, dict]:
