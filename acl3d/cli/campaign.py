@@ -221,11 +221,13 @@ def _export(args) -> int:
     _check_export_out(args, out, manifest, shipped=not args.out)
     spec = None  # the manifest's
     if args.add:
-        earlier = (earlier_export(out, args.protocol).get("spec")) or {}
-        spec = merged_spec(earlier, manifest.get("spec") or {})
+        earlier, ours = (
+            earlier_export(out, args.protocol).get("spec") or {},
+            manifest.get("spec") or {},
+        )
+        spec = merged_spec(earlier, ours)
         if spec is None:
-            differ = [k for k in ("name", "base", "grid")
-                      if earlier.get(k) != (manifest.get("spec") or {}).get(k)]  # fmt: skip
+            differ = [k for k in ("name", "base", "grid") if earlier.get(k) != ours.get(k)]
             raise ValueError(
                 f"--add: the runs in {str(out)!r} were made under another spec than campaign "
                 f"{args.dir!r} (its {', '.join(differ)} differ); export to another --out"
