@@ -32,6 +32,12 @@ def trained_run(tmp_path_factory) -> Path:
     return run_dir
 
 
+ORACLE = {"teacher": "oracle", "teacher_params": {"step_rate": 50}}
+GROWN = {"teacher": {"random": {"teacher": "random"}, "oracle": ORACLE}}  # a label added
+RANDOM_RESEEDED = {"teacher": {"random": {"teacher": "random", "teacher_params": {"x": 1}}}}
+ORACLE_ONLY = {"teacher": {"oracle": ORACLE}}  # random dropped
+
+
 def _campaign(root: Path, run: Path, seed: int, **spec_changes) -> Path:
     """A campaign directory of one finished cell, `random__s{seed}`, under `SPEC` changed."""
     name = f"random__s{seed}"
@@ -78,6 +84,8 @@ def test_add_keeps_the_runs_exported_before_and_records_both(tmp_path, trained_r
         (lambda tmp, run: _campaign(tmp / "c", run, 1, base={"steps": 512, "n_envs": 1}),
          "another spec.*base differ"),
         (lambda tmp, run: _campaign(tmp / "c", run, 1, name="other"), "name differ"),
+        (lambda tmp, run: _campaign(tmp / "c", run, 1, grid=RANDOM_RESEEDED), "grid differ"),
+        (lambda tmp, run: _campaign(tmp / "c", run, 1, grid=ORACLE_ONLY), "grid differ"),
     ],
 )  # fmt: skip
 def test_add_refuses_runs_of_another_spec_and_changes_nothing(tmp_path, capsys, trained_run,
@@ -88,6 +96,19 @@ def test_add_refuses_runs_of_another_spec_and_changes_nothing(tmp_path, capsys, 
     assert _export(setup(tmp_path, trained_run), out, "--add") == 2
     assert re.search(message, capsys.readouterr().err)
     assert _tree(out) == before
+
+
+def test_add_takes_a_campaign_whose_grid_adds_labels_and_records_the_grown_grid(
+    tmp_path, trained_run
+):
+    out = tmp_path / "exported"
+    assert _export(_campaign(tmp_path / "a", trained_run, 0), out) == 0
+    before = _tree(out / "random__s0")
+    assert _export(_campaign(tmp_path / "b", trained_run, 1, grid=GROWN), out, "--add") == 0
+    assert _tree(out / "random__s0") == before
+    doc = yaml.safe_load((out / "protocol.yaml").read_text())
+    assert sorted(doc["runs"]) == ["random__s0", "random__s1"]
+    assert doc["spec"]["grid"] == GROWN and doc["spec"]["seeds"] == [0, 1]
 
 
 def test_add_needs_an_export_of_the_same_protocol(tmp_path, capsys, trained_run):

@@ -96,6 +96,8 @@ def test_stump_rsl_10m_is_stump_rsl_at_five_times_the_budget_with_the_noise_floo
     }
     params = dict(short.base["student_params"], min_noise_std=0.3)
     assert long.base["student_params"] == params
-    assert long.grid["teacher"] == {t: short.grid["teacher"][t] for t in ("random", "alp-gmm", "oracle")}
+    assert long.grid["teacher"] == {
+        t: short.grid["teacher"][t] for t in ("random", "alp-gmm", "oracle")
+    }
     assert list(long.seeds) == list(range(8))
     check_runs(long.expand())

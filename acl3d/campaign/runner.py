@@ -147,16 +147,27 @@ def check_environments(runs: list[RunSpec]) -> None:
             raise ValueError(f"run {run.name}: {exc}") from None
 
 
-def merged_spec(old: dict, new: dict) -> dict | None:
+def merged_spec(old: dict, new: dict, grid_may_grow: bool = False) -> dict | None:
     """The spec of both invocations when they select cells of one campaign (the same name,
     base and grid): the cells and seeds of either, under the new spec's exclusions (a campaign
     may grow by cells it used to exclude; `prepare` refuses one that would exclude started
-    runs); None when they are two campaigns."""
-    if any(old.get(key) != new.get(key) for key in ("name", "base", "grid")):
+    runs); None when they are two campaigns. With `grid_may_grow` (an export's runs joined by
+    a later campaign) the new grid may add labels to the old one's axes, every old cell kept as
+    it was, and the merged spec takes the new grid."""
+    keys = ("name", "base") if grid_may_grow and grid_holds(new, old) else ("name", "base", "grid")
+    if any(old.get(key) != new.get(key) for key in keys):
         return None
     a, b = old.get("only") or {}, new.get("only") or {}
     only = {axis: a[axis] + [x for x in b[axis] if x not in a[axis]] for axis in a if axis in b}
     return {**new, "only": only, "seeds": sorted({*old["seeds"], *new["seeds"]})}
+
+
+def grid_holds(spec: dict, other: dict) -> bool:
+    """Whether `spec`'s grid has `other`'s axes and every label of them with the same options."""
+    grid, theirs = spec.get("grid") or {}, other.get("grid") or {}
+    return set(grid) == set(theirs) and all(
+        grid[axis].get(label) == cell for axis in theirs for label, cell in theirs[axis].items()
+    )
 
 
 def _comparable(runs: list[dict]) -> set:

@@ -208,7 +208,7 @@ def _export(args) -> int:
 
     from acl3d import results
     from acl3d.analysis.export import earlier_export, export_campaign
-    from acl3d.campaign.runner import CampaignDir, merged_spec
+    from acl3d.campaign.runner import CampaignDir, grid_holds, merged_spec
     from acl3d.campaign.spec import builtin_names, load_spec
 
     out = Path(args.out) if args.out else Path(results.__file__).parent / args.protocol
@@ -225,12 +225,14 @@ def _export(args) -> int:
             earlier_export(out, args.protocol).get("spec") or {},
             manifest.get("spec") or {},
         )
-        spec = merged_spec(earlier, ours)
+        spec = merged_spec(earlier, ours, grid_may_grow=True)
         if spec is None:
-            differ = [k for k in ("name", "base", "grid") if earlier.get(k) != ours.get(k)]
+            differ = [k for k in ("name", "base") if earlier.get(k) != ours.get(k)]
+            differ += [] if grid_holds(ours, earlier) else ["grid"]
             raise ValueError(
                 f"--add: the runs in {str(out)!r} were made under another spec than campaign "
-                f"{args.dir!r} (its {', '.join(differ)} differ); export to another --out"
+                f"{args.dir!r} (its {', '.join(differ)} differ; a grid may only add labels); "
+                "export to another --out"
             )
     names = export_campaign(args.dir, out, args.protocol, planned, add=args.add, spec=spec)
     print(f"{len(names)} finished runs exported to {out}")
