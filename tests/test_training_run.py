@@ -12,6 +12,7 @@ import pytest
 import yaml
 from gl_support import require_offscreen_gl
 
+from acl3d import results
 from acl3d.cli import main
 from acl3d.run_format.tables import read_csv
 from acl3d.teachers.base import load_state
@@ -315,6 +316,22 @@ def test_config_file_holds_options_and_cli_overrides_it(tmp_path):
     assert config.effective_eval_every == 400_000  # TeachMyAgent's 500k, scaled to 5 evals
     assert TrainConfig.from_dict({"steps": 20_000_000}).effective_eval_every == 500_000
     assert TrainConfig.from_dict({"steps": 10_000}).effective_eval_every == 50_000  # final only
+
+
+def test_config_takes_a_runs_config_yaml_as_its_recipe_without_its_folder(tmp_path):
+    from acl3d.cli import build_parser
+    from acl3d.cli.train import options_from_args
+
+    shipped = results.path("stump-rsl") / "random__s0" / "config.yaml"
+    recorded = yaml.safe_load(shipped.read_text())["config"]
+    options = options_from_args(
+        build_parser().parse_args(["train", "--config", str(shipped), "--seed", "3"])
+    )
+    assert options == {**recorded, "seed": 3}
+    local = tmp_path / "config.yaml"  # a run directory's own records its folder
+    local.write_text(yaml.safe_dump({"config": {**recorded, "out": "runs/x"}, "environment": {}}))
+    options = options_from_args(build_parser().parse_args(["train", "--config", str(local)]))
+    assert "out" not in options and options["student_params"] == recorded["student_params"]
 
 
 @pytest.mark.parametrize(

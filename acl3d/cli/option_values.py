@@ -97,6 +97,9 @@ def load_config_file(path) -> dict:
         raise ValueError(f"--config file {str(path)!r} cannot be read: {where}") from None
     if not isinstance(data, dict):
         raise ValueError(f"--config file {str(path)!r} must hold a mapping of options")
+    if isinstance(data.get("config"), dict) and "environment" in data:
+        # a run's config.yaml: its recipe, trained again wherever --out says, not in the run
+        data = {k: v for k, v in data["config"].items() if k != "out"}
     options = {k.replace("-", "_"): v for k, v in data.items()}
     for key in MAPPING_OPTIONS:  # merged with the repeatable options: checked here
         if key in options and not isinstance(options[key], dict):
