@@ -9,6 +9,11 @@
 #                                          # worlds (stump-tracks: and a new process's first
 #                                          # step; terrain3d: big_quadru; parkour: BODY, e.g.
 #                                          # classic_bipedal in water, climbing_profile_chimpanzee)
+#   scripts/gpu_benchmarks.sh levers OUT [ROWS] [SLOTS]
+#                                          # 3D Terrain's big quadruped at 16,384 worlds with
+#                                          # MuJoCo Warp's reservations and with fewer constraint
+#                                          # rows (default 192) and contact slots (default 24)
+#                                          # per world, alone and together
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
@@ -29,7 +34,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|speed|teachers|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|speed|teachers|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -63,6 +68,11 @@ env)
   python3 scripts/bench_gpu.py --device cuda --env "$env" --sizes 4096 16384 --steps 100 \
     "${extra[@]}" --json "$out/bench_gpu_$env${4:+_$4}.json" 2>&1 | grep -v '^Module' \
     | tee "$out/bench_gpu_$env${4:+_$4}.txt"
+  ;;
+levers)  # what 3D Terrain's raw physics, which bounds its env, gains from smaller reservations
+  python3 scripts/bench_gpu.py --device cuda --env terrain3d --body big_quadru --sizes 16384 \
+    --steps 100 --constraint-rows 0 "${3:-192}" --contact-slots 0 "${4:-24}" \
+    --json "$out/bench_gpu_levers.json" 2>&1 | grep -v '^Module' | tee "$out/bench_gpu_levers.txt"
   ;;
 speed)
   steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}
@@ -118,7 +128,7 @@ pack)
     mv "$packed" "$out/results.tgz"
   ;;
 *)
-  echo "unknown stage $stage: cpu, env, speed, teachers, repeat, learn, summary or pack" >&2
+  echo "unknown stage $stage: cpu, env, levers, speed, teachers, repeat, learn, summary or pack" >&2
   exit 2
   ;;
 esac
