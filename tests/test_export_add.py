@@ -133,3 +133,23 @@ def test_an_export_that_fails_on_the_way_leaves_the_earlier_one_as_it_was(tmp_pa
             export_campaign(broken, out, "mini", add=add, spec=SPEC)
         assert _tree(out) == before
         assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "exported"]
+
+
+def test_a_planned_run_with_no_evaluation_yet_is_named_as_left_out(tmp_path, trained_run):
+    camp = _campaign(tmp_path / "a", trained_run, 0)
+    started = camp / "runs" / "random__s1"  # running: its config written, no evaluation yet
+    shutil.copytree(trained_run, started)
+    header = (started / "evals.csv").read_text().splitlines()[0]
+    (started / "evals.csv").write_text(header + "\n")
+    (started / "status.json").write_text('{"status": "running"}')
+    doc = yaml.safe_load((camp / "campaign.yaml").read_text())
+    # s1 started, s2 planned and never started
+    doc["runs"] += [
+        {"name": f"random__s{s}", "labels": {"teacher": "random", "seed": s}} for s in (1, 2)
+    ]
+    (camp / "campaign.yaml").write_text(yaml.safe_dump(doc))
+    out = tmp_path / "exported"
+    assert _export(camp, out) == 0
+    exported = yaml.safe_load((out / "protocol.yaml").read_text())
+    assert exported["runs"] == ["random__s0"]
+    assert exported["left_out"] == ["random__s1", "random__s2"]

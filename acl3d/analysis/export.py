@@ -161,7 +161,9 @@ def export_campaign(
             planned[teacher] = planned.get(teacher, 0) + 1
         for teacher, count in (earlier.get("planned_runs") or {}).items():
             planned[teacher] = max(planned.get(teacher, 0), count)
+        # a run not finished: one with evaluations, or one planned that has none yet
         left_out = {r.path.name for r in runs if r.status != "finished"}
+        left_out |= {str(entry["name"]) for entry in campaign.get("runs", [])}
         left_out = (left_out | set(earlier.get("left_out") or [])) - set(names + kept)
         doc = {
             "protocol": protocol,
