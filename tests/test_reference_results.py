@@ -23,6 +23,7 @@ from acl3d.analysis.leaderboard import (
     HEADLINE_START,
     LEADERBOARD_END,
     LEADERBOARD_START,
+    seed_ranges,
     write_headline,
     write_leaderboard,
 )
@@ -275,3 +276,8 @@ def test_incomplete_against_the_runs_the_campaign_planned(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 0 and "alp-gmm (2 of 3 seeds)" in err
     assert "riac (" not in err and "random (" not in err
+
+
+def test_a_protocols_header_names_each_teachers_seeds_as_ranges_when_they_differ():
+    assert seed_ranges([3, 0, 1, 2, 9, 7]) == "0–3, 7, 9"
+    assert seed_ranges(range(16)) == "0–15" and seed_ranges([2, 3]) == "2, 3"

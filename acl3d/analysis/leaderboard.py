@@ -134,7 +134,20 @@ def _seeds(runs: list[Run]) -> str:
     if len(sets) == 1:
         return f"{len(next(iter(sets)))} seeds"
     return "seeds " + "; ".join(
-        f"{teacher} {', '.join(map(str, sorted(seeds)))}" for teacher, seeds in by_teacher.items()
+        f"{teacher} {seed_ranges(seeds)}" for teacher, seeds in sorted(by_teacher.items())
+    )
+
+
+def seed_ranges(seeds) -> str:
+    """'0–7, 9' for seeds 0 to 7 and 9: three or more consecutive seeds as a range."""
+    spans: list[list[int]] = []
+    for seed in sorted(set(seeds)):
+        if spans and seed == spans[-1][-1] + 1:
+            spans[-1].append(seed)
+        else:
+            spans.append([seed])
+    return ", ".join(
+        f"{span[0]}–{span[-1]}" if len(span) >= 3 else ", ".join(map(str, span)) for span in spans
     )
 
 
