@@ -247,6 +247,7 @@ def test_leaderboard_from_committed_form(tmp_path):
     assert "old table" not in headline and headline.endswith("## Next\n")
     iqm = next(line for line in text.splitlines() if line.startswith("| alp-gmm"))
     assert iqm.split(" | ")[5] in headline  # return IQM [95% CI] of alp-gmm, as in the page
+    assert iqm.split(" | ")[4] in headline  # and its % mastered p (Welch, Holm)
 
 
 def test_an_incomplete_reference_is_named_before_the_report(tmp_path, capsys):

@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 import acl3d
+from acl3d import results
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,8 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--reference",
         metavar="PROTOCOL",
-        help="compare with a reference protocol's runs: a shipped one (stump-v1, "
-        "parkour-walker-v1) or a folder of runs; runs of another protocol are refused",
+        help="compare with a reference protocol's runs: a shipped one "
+        f"({', '.join(results.protocols())}) or a folder of runs; runs of another protocol are "
+        "refused",
     )
 
 
