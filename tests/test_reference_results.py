@@ -282,3 +282,9 @@ def test_incomplete_against_the_runs_the_campaign_planned(tmp_path, capsys):
 def test_a_protocols_header_names_each_teachers_seeds_as_ranges_when_they_differ():
     assert seed_ranges([3, 0, 1, 2, 9, 7]) == "0–3, 7, 9"
     assert seed_ranges(range(16)) == "0–15" and seed_ranges([2, 3]) == "2, 3"
+
+
+def test_a_holm_adjusted_p_below_001_keeps_a_digit_in_the_leaderboard():
+    from acl3d.analysis.leaderboard import _p_cell
+
+    assert _p_cell(0.0007, 0.0021) == "0.001 (0.002) *" and _p_cell(0.2, 0.6) == "0.200 (0.60)"

@@ -40,7 +40,8 @@ def _p_cell(raw: float, adjusted: float) -> str:
     if not np.isfinite(raw):
         return "–"
     star = " *" if adjusted < stats.ALPHA else ""
-    return f"{raw:.3f} ({adjusted:.2f}){star}"
+    held = f"{adjusted:.2f}" if adjusted >= 0.01 else f"{adjusted:.3f}"  # never "0.00"
+    return f"{raw:.3f} ({held}){star}"
 
 
 def _count(n: float) -> str:
