@@ -98,6 +98,29 @@ def test_add_refuses_runs_of_another_spec_and_changes_nothing(tmp_path, capsys, 
     assert _tree(out) == before
 
 
+PINNED = {"steps": 256, "n_envs": 1, "student": "rsl-ppo", "student_params": {"gamma": 0.99}}
+
+
+@pytest.mark.parametrize("floor, taken", [(0.0, True), (0.3, False)])
+def test_add_takes_a_spec_that_pins_a_parameter_added_since_at_its_earlier_value(
+    tmp_path, capsys, trained_run, floor, taken
+):
+    """rsl-ppo's `min_noise_std` came after runs that pinned its other parameters: pinned at 0
+    (no floor, what those runs trained with) it is the same spec; at 0.3 another one."""
+    out = tmp_path / "exported"
+    assert _export(_campaign(tmp_path / "a", trained_run, 0, base=PINNED), out) == 0
+    before = _tree(out)
+    pinned = {**PINNED, "student_params": {**PINNED["student_params"], "min_noise_std": floor}}
+    code = _export(_campaign(tmp_path / "b", trained_run, 1, base=pinned), out, "--add")
+    doc = yaml.safe_load((out / "protocol.yaml").read_text())
+    if taken:
+        assert code == 0 and sorted(doc["runs"]) == ["random__s0", "random__s1"]
+        assert doc["spec"]["base"] == pinned  # the spec as pinned now
+    else:
+        assert code == 2 and re.search("another spec.*base differ", capsys.readouterr().err)
+        assert _tree(out) == before
+
+
 def test_add_takes_a_campaign_whose_grid_adds_labels_and_records_the_grown_grid(
     tmp_path, trained_run
 ):

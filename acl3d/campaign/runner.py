@@ -154,12 +154,33 @@ def merged_spec(old: dict, new: dict, grid_may_grow: bool = False) -> dict | Non
     runs); None when they are two campaigns. With `grid_may_grow` (an export's runs joined by
     a later campaign) the new grid may add labels to the old one's axes, every old cell kept as
     it was, and the merged spec takes the new grid."""
-    keys = ("name", "base") if grid_may_grow and grid_holds(new, old) else ("name", "base", "grid")
-    if any(old.get(key) != new.get(key) for key in keys):
+    if spec_differences(old, new, grid_may_grow):
         return None
     a, b = old.get("only") or {}, new.get("only") or {}
     only = {axis: a[axis] + [x for x in b[axis] if x not in a[axis]] for axis in a if axis in b}
     return {**new, "only": only, "seeds": sorted({*old["seeds"], *new["seeds"]})}
+
+
+def spec_differences(old: dict, new: dict, grid_may_grow: bool = False) -> list[str]:
+    """What makes `new` another campaign than `old`: "name", "base" (compared with the student
+    parameters added since either was written pinned at their earlier values, so a spec that
+    pins one of them at that value stays the same campaign) and "grid" (unless `grid_may_grow`
+    and the new grid only adds labels to the old one's axes)."""
+    differ = [key for key in ("name",) if old.get(key) != new.get(key)]
+    differ += [] if _settled_base(old) == _settled_base(new) else ["base"]
+    grid_ok = grid_holds(new, old) if grid_may_grow else old.get("grid") == new.get("grid")
+    return differ + ([] if grid_ok else ["grid"])
+
+
+def _settled_base(spec: dict) -> dict | None:
+    base = spec.get("base")
+    if not isinstance(base, dict) or not isinstance(base.get("student_params"), dict):
+        return base
+    from acl3d.training import TrainConfig
+    from acl3d.training.students import added_parameters
+
+    added = added_parameters(base.get("student", TrainConfig.student))
+    return {**base, "student_params": {**added, **base["student_params"]}}
 
 
 def grid_holds(spec: dict, other: dict) -> bool:

@@ -208,7 +208,7 @@ def _export(args) -> int:
 
     from acl3d import results
     from acl3d.analysis.export import earlier_export, export_campaign
-    from acl3d.campaign.runner import CampaignDir, grid_holds, merged_spec
+    from acl3d.campaign.runner import CampaignDir, merged_spec, spec_differences
     from acl3d.campaign.spec import builtin_names, load_spec
 
     out = Path(args.out) if args.out else Path(results.__file__).parent / args.protocol
@@ -227,8 +227,7 @@ def _export(args) -> int:
         )
         spec = merged_spec(earlier, ours, grid_may_grow=True)
         if spec is None:
-            differ = [k for k in ("name", "base") if earlier.get(k) != ours.get(k)]
-            differ += [] if grid_holds(ours, earlier) else ["grid"]
+            differ = spec_differences(earlier, ours, grid_may_grow=True)
             raise ValueError(
                 f"--add: the runs in {str(out)!r} were made under another spec than campaign "
                 f"{args.dir!r} (its {', '.join(differ)} differ; a grid may only add labels); "

@@ -108,6 +108,17 @@ def is_torch_native(student) -> bool:
     return student in TORCH_STUDENTS
 
 
+def added_parameters(student: str) -> dict[str, Any]:
+    """The parameters `student` gained after runs of it had shipped, each at the value that
+    trains as the student did before it existed: a spec that pinned the student's other
+    parameters describes the same runs as one that pins these at those values."""
+    if is_torch_native(student):
+        from acl3d.training.torch_student import presets as torch_presets
+
+        return dict(torch_presets.ADDED_PARAMETERS)
+    return {}
+
+
 def is_on_policy(student: str) -> bool:
     return is_torch_native(student) or issubclass(algorithm_class(student), OnPolicyAlgorithm)
 

@@ -37,6 +37,9 @@ PRESETS = ("benchmark", "fast")
 ACTIVATIONS = ("elu", "relu", "tanh")
 MAX_ROLLOUT = 10_000_000  # num_steps_per_env x n_envs
 MAX_LAYER = 65_536
+# Parameters added after runs shipped, at the value that trains as rsl-ppo did before each
+# (`students.added_parameters`): min_noise_std 0 is no floor, as before it existed.
+ADDED_PARAMETERS = {"min_noise_std": 0.0}
 
 
 def _common() -> dict[str, Any]:
