@@ -190,16 +190,20 @@ def test_a_forgetting_student_starts_afresh_and_resumes_exactly(reference, tmp_p
 def test_a_teacher_learning_from_steps_gets_each_episode_after_its_steps(tmp_path, monkeypatch):
     """Robust PLR with rsl-ppo on the CPU batched env: each episode reaches the teacher after its
     steps, whose rewards sum to its return (its score, the positive value loss, comes from them
-    and rsl-ppo's critic), and a run stopped at 512 steps and resumed is the uninterrupted one
-    (the teacher's open step buffers included)."""
+    and rsl-ppo's critic, asked once for the episodes ending together: the same values, bit
+    for bit, as one call an episode), and a run stopped at 512 steps and resumed is the
+    uninterrupted one (the teacher's open step buffers included)."""
     from acl3d.teachers.plr import RobustPLR
 
-    scored = []
+    scored, asked_together = [], []
     original = RobustPLR._episode_score
 
     def score(self, index, reward):
         steps = self._finished[0] if self._finished else None
         scored.append((None if steps is None else float(np.sum(steps[1])), reward))
+        if self._values:
+            alone = self.value_estimator(steps[0])
+            asked_together.append(np.array_equal(self._values[0], alone))
         return original(self, index, reward)
 
     monkeypatch.setattr(RobustPLR, "_episode_score", score)
@@ -212,6 +216,7 @@ def test_a_teacher_learning_from_steps_gets_each_episode_after_its_steps(tmp_pat
     assert resolved["exclude_exploratory"] is True  # its new levels stay out of the updates
     assert len(scored) > 10
     assert all(total is not None and abs(total - ret) < 1e-3 for total, ret in scored), scored
+    assert asked_together and all(asked_together)  # episodes ending at the same step
     shorter = [*plr, "--out", str(parts)]
     shorter[shorter.index("--steps") + 1] = "512"
     assert main(["train", *shorter]) == 0

@@ -75,6 +75,42 @@ def test_a_batch_of_steps_is_one_step_call_per_env_in_env_order(name, tmp_path):
         assert batched.algo_iterations > 5  # updates fell inside batches
 
 
+@pytest.mark.parametrize("name", ["robust-plr", "accel"])
+def test_a_batch_of_episodes_asks_the_critic_once_and_scores_as_one_at_a_time(name):
+    """The episodes a batch learns get their critic values in one call to `episodes` (one
+    copy to a GPU and back); the teacher ends as with an `episodic_update` each."""
+    calls = []
+
+    def episodes(states: list) -> list:
+        calls.append(len(states))
+        return [_critic(s) for s in states]
+
+    def play(batched: bool):
+        teacher = _make(name)
+        if batched:
+            teacher.set_value_estimator(_critic, episodes)
+        rng = np.random.default_rng(0)
+        for _ in range(6):
+            tasks = teacher.sample_tasks(N)
+            for _ in range(rng.integers(3, 9)):  # the episodes' steps, the last one ending them
+                teacher.step_updates(rng.normal(size=(N, 3)).astype(np.float32), None,
+                                     rng.normal(size=N), None, np.zeros(N, bool))  # fmt: skip
+            teacher.step_updates(rng.normal(size=(N, 3)).astype(np.float32), None,
+                                 rng.normal(size=N), None, np.ones(N, bool))  # fmt: skip
+            returns = rng.normal(size=N) * 10
+            if batched:
+                teacher.update_batch(tasks, returns)
+            else:
+                for task, ret in zip(tasks, returns):
+                    teacher.episodic_update(task, float(ret))
+        return teacher
+
+    one_by_one, together = play(False), play(True)
+    assert calls == [N] * 6
+    np.testing.assert_equal(together.state_dict(), one_by_one.state_dict())
+    np.testing.assert_equal(together.dump(), one_by_one.dump())
+
+
 def test_lessons_count_a_batch_as_its_steps():
     def lessons(batched: bool) -> Lessons:
         t = make(

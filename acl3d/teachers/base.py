@@ -31,6 +31,8 @@ SANE_TASK_MARGIN = 10.0
 MAX_ABS_RETURN = 1e12
 
 ValueEstimator = Callable[[np.ndarray], np.ndarray | None]
+# the states of several episodes -> each one's values, as a `ValueEstimator` gives them
+EpisodeValues = Callable[[list[np.ndarray]], list[np.ndarray | None]]
 
 
 def _no_value(states: np.ndarray) -> None:
@@ -110,6 +112,7 @@ class Teacher(ABC):
         self.seed = seed
         self.rng = np.random.default_rng(self.seed)
         self.value_estimator: ValueEstimator = _no_value
+        self.episode_values: EpisodeValues = self._each_episode
         self.bk: dict[str, list] = defaultdict(list)
         self.nb_episodes = 0
 
@@ -195,9 +198,16 @@ class Teacher(ABC):
             task = self._check_task(task)
             self._record_initial_state(task, np.asarray(state, dtype=np.float32))
 
-    def set_value_estimator(self, fn: ValueEstimator) -> None:
-        """Give the teacher the student's value function: batch of states -> values."""
+    def set_value_estimator(self, fn: ValueEstimator, episodes: EpisodeValues | None = None):
+        """Give the teacher the student's value function: batch of states -> values; and
+        `episodes`, the same for several episodes in one call (each episode's values as `fn`
+        gives them; where the critic is on a GPU, one copy there and back for all of them),
+        by default `fn` on each."""
         self.value_estimator = fn
+        self.episode_values = self._each_episode if episodes is None else episodes
+
+    def _each_episode(self, states: list[np.ndarray]) -> list[np.ndarray | None]:
+        return [self.value_estimator(s) for s in states]
 
     def non_exploratory_task_sampling(self) -> dict[str, Any]:
         """A task from the teacher's current distribution without exploration noise (for plots)."""

@@ -128,8 +128,8 @@ class TeacherController:
     def needs(self) -> frozenset[str]:
         return self.teacher.needs
 
-    def set_value_estimator(self, fn) -> None:
-        self.teacher.set_value_estimator(fn)
+    def set_value_estimator(self, fn, episodes=None) -> None:
+        self.teacher.set_value_estimator(fn, episodes)
 
     @property
     def reward_bounds(self) -> tuple[float, float]:

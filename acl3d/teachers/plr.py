@@ -114,6 +114,7 @@ class RobustPLR(Teacher):
         self._finished: deque[tuple[np.ndarray, np.ndarray]] = (
             deque()
         )  # episodes' (states, rewards)
+        self._values: deque[np.ndarray | None] = deque()  # the critic's, for a batch's first
         self._mean_return = 0.0
 
     # ------------------------------------------------------------------ sampling
@@ -199,7 +200,7 @@ class RobustPLR(Teacher):
         baseline = self.mean_returns[index] if index >= 0 else self._mean_return
         values = None
         if steps is not None:
-            values = self.value_estimator(steps[0])
+            values = self._values.popleft() if self._values else self.value_estimator(steps[0])
             if values is not None:
                 values = real_array("value_estimator output", values, size=len(steps[1]))
         if values is None:  # no critic: the level's (or all levels') mean return stands in for V
@@ -209,6 +210,17 @@ class RobustPLR(Teacher):
             best = max(reward, self.max_returns[index]) if index >= 0 else reward
             return float(np.mean(best - values))
         return positive_value_loss(rewards, values, self.discount, self.gae_lambda)
+
+    def _update_batch(self, tasks: np.ndarray, returns: np.ndarray, successes: np.ndarray):
+        """The episodes in order (each changes the buffer the next one meets), their critic
+        values asked for first, in one call: the critic does not change within a batch."""
+        count = min(len(tasks), len(self._finished))
+        if count > 1:
+            self._values.extend(self.episode_values([self._finished[k][0] for k in range(count)]))
+        try:
+            super()._update_batch(tasks, returns, successes)
+        finally:
+            self._values.clear()
 
     def _match_pending(self, task: np.ndarray) -> tuple[int, int]:
         proposal = self._pending.oldest(task)

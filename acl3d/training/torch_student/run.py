@@ -121,13 +121,23 @@ class TorchRun:
             self.device, self.env.action_low, self.env.action_high, self.exclude_exploratory,
         )  # fmt: skip
         if "value_estimator" in self.controller.needs:
-            self.controller.set_value_estimator(
-                lambda states: (
-                    self.student.value(torch.as_tensor(np.atleast_2d(states), dtype=torch.float32))
-                    .cpu()
-                    .numpy()
-                )
-            )
+            self.controller.set_value_estimator(self._values, self._episode_values)
+
+    def _values(self, states: np.ndarray) -> np.ndarray:
+        """The critic's values of a batch of states (a teacher's value estimator)."""
+        states = torch.as_tensor(np.atleast_2d(states), dtype=torch.float32)
+        return self.student.value(states).cpu().numpy()
+
+    def _episode_values(self, episodes: list[np.ndarray]) -> list[np.ndarray]:
+        """`_values` of each episode's states, with one copy to the device and one back for
+        all of them (not two waits for the GPU an episode); each episode still goes through
+        the critic alone, as `_values` would give it (a layer's bits can depend on its batch)."""
+        states = [np.atleast_2d(s) for s in episodes]
+        sizes = [len(s) for s in states]
+        together = torch.as_tensor(np.concatenate(states), dtype=torch.float32)
+        together = together.to(self.student.device)
+        values = torch.cat([self.student.value(part) for part in together.split(sizes)])
+        return np.split(values.cpu().numpy(), np.cumsum(sizes)[:-1])
 
     def _restore(self, folder: Path) -> tuple[torch.Tensor, int]:
         state = torch.load(folder / "student.pt", weights_only=False)
