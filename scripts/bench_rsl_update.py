@@ -3,11 +3,14 @@ on a second thread), on the same rollout from the same weights, in interleaved r
 
     python scripts/bench_rsl_update.py                 # fast preset, 64 worlds, Stump Tracks sizes
     python scripts/bench_rsl_update.py --worlds 128 --param num_steps_per_env=64 --rounds 10
+    python scripts/bench_rsl_update.py --device cuda --preset benchmark --worlds 16384 --rounds 5
 
 Every variant updates a copy of one student (weights, optimiser state, learning rate, generator
 state) on one stored rollout, so the rows must end with the same weights ("same weights" says
 whether they do) and their times compare the same work. Prints the median over rounds and its
-ratio to rsl_rl's; one torch thread per thread, as `acl3d train` runs.
+ratio to rsl_rl's; one torch thread per thread, as `acl3d train` runs. On a GPU (`--device
+cuda`) the critic thread is left out (`LeanPPO` runs it on the CPU only) and each update is timed
+to the end of its kernels.
 """
 
 from __future__ import annotations
@@ -26,31 +29,31 @@ from acl3d.training.torch_student import presets, rsl_ppo
 from acl3d.training.torch_student.lean_ppo import LeanPPO
 
 
-def build(params: dict, worlds: int, obs_size: int, act_size: int, variant: str):
+def build(params: dict, worlds: int, obs_size: int, act_size: int, variant: str, device: str):
     torch.manual_seed(0)
     spec = {"observation_size": obs_size, "action_size": act_size,
             **{k: params[k] for k in ("hidden_dims", "activation", "init_noise_std")}}  # fmt: skip
-    actor, critic, obs = rsl_ppo._models(spec, worlds, "cpu")
-    storage = RolloutStorage("rl", worlds, params["num_steps_per_env"], obs, [act_size], "cpu")
+    actor, critic, obs = rsl_ppo._models(spec, worlds, device)
+    storage = RolloutStorage("rl", worlds, params["num_steps_per_env"], obs, [act_size], device)
     settings = rsl_ppo.algorithm_settings(params)
     if variant == "rsl_rl":
-        alg = PPO(actor, critic, storage, device="cpu", **settings)
+        alg = PPO(actor, critic, storage, device=device, **settings)
     else:
-        alg = LeanPPO(actor, critic, storage, device="cpu", critic_thread=variant.endswith("thread"),
+        alg = LeanPPO(actor, critic, storage, device=device, critic_thread=variant.endswith("thread"),
                       **settings)  # fmt: skip
     alg.train_mode()
     return alg
 
 
-def fill(alg, worlds: int, steps: int, obs_size: int, seed: int) -> None:
+def fill(alg, worlds: int, steps: int, obs_size: int, seed: int, device: str) -> None:
     """One rollout of random observations, rewards and episode ends, acted by `alg`."""
-    g = torch.Generator().manual_seed(seed)
+    g = torch.Generator(device).manual_seed(seed)
     with torch.inference_mode():
         for _ in range(steps):
-            obs = torch.randn(worlds, obs_size, generator=g) * 2
+            obs = torch.randn(worlds, obs_size, generator=g, device=device) * 2
             rewards, dones = (
-                torch.randn(worlds, generator=g),
-                torch.rand(worlds, generator=g) < 0.01,
+                torch.randn(worlds, generator=g, device=device),
+                torch.rand(worlds, generator=g, device=device) < 0.01,
             )
             if isinstance(alg, LeanPPO):
                 alg.act(obs)
@@ -58,7 +61,8 @@ def fill(alg, worlds: int, steps: int, obs_size: int, seed: int) -> None:
             else:
                 alg.act(rsl_ppo._obs(obs))
                 alg.process_env_step(None, rewards, dones, {})
-        alg.compute_returns(rsl_ppo._obs(torch.randn(worlds, obs_size, generator=g)))
+        last = torch.randn(worlds, obs_size, generator=g, device=device)
+        alg.compute_returns(rsl_ppo._obs(last))
 
 
 def main() -> None:
@@ -69,16 +73,18 @@ def main() -> None:
     p.add_argument("--obs", type=int, default=24, help="observation size (Stump Tracks: 24)")
     p.add_argument("--actions", type=int, default=4, help="action size (classic biped: 4)")
     p.add_argument("--rounds", type=int, default=8)
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
     args = p.parse_args()
+    device, cuda = args.device, args.device.startswith("cuda")
     torch.set_num_threads(1)
     overrides = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.param)}
     params = presets.hyperparameters(args.preset, args.worlds, overrides)
     steps = params["num_steps_per_env"]
-    variants = ("rsl_rl", "lean", "lean+critic thread")
-    students = {v: build(params, args.worlds, args.obs, args.actions, v) for v in variants}
+    variants = ("rsl_rl", "lean") + (() if cuda else ("lean+critic thread",))
+    students = {v: build(params, args.worlds, args.obs, args.actions, v, device) for v in variants}
     for alg in students.values():  # a first update: Adam's state exists, as in training
         torch.manual_seed(0)
-        fill(alg, args.worlds, steps, args.obs, seed=0)
+        fill(alg, args.worlds, steps, args.obs, 0, device)
         alg.update()
     seconds = {v: [] for v in variants}
     weights = {}
@@ -86,9 +92,13 @@ def main() -> None:
         for v, alg in students.items():
             before = copy.deepcopy((alg.save(), alg.learning_rate))
             torch.manual_seed(r + 1)
-            fill(alg, args.worlds, steps, args.obs, seed=r + 1)
+            fill(alg, args.worlds, steps, args.obs, r + 1, device)
+            if cuda:
+                torch.cuda.synchronize()
             start = time.perf_counter()
             alg.update()
+            if cuda:
+                torch.cuda.synchronize()
             seconds[v].append(time.perf_counter() - start)
             weights[v] = [t.clone() for t in alg.save()["actor_state_dict"].values()]
             alg.load(before[0], None, strict=True)  # every round starts from the same student
@@ -97,7 +107,7 @@ def main() -> None:
         all(torch.equal(a, b) for a, b in zip(weights["rsl_rl"], weights[v])) for v in variants
     )
     samples = steps * args.worlds
-    print(f"PPO update of {samples} samples ({args.worlds} worlds x {steps} steps, "
+    print(f"PPO update on {device} of {samples} samples ({args.worlds} worlds x {steps} steps, "
           f"{params['num_learning_epochs']} x {params['num_mini_batches']}, "
           f"{params['hidden_dims']}), median of {args.rounds} interleaved rounds")  # fmt: skip
     reference = statistics.median(seconds["rsl_rl"])

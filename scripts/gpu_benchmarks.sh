@@ -20,6 +20,8 @@
 #   scripts/gpu_benchmarks.sh teachers OUT [STEPS]
 #                                          # Robust PLR, SPDL and the setter-solver alone at
 #                                          # 4,096 worlds (default 2M steps): the teacher's share
+#   scripts/gpu_benchmarks.sh update OUT   # rsl-ppo's update alone, rsl_rl's PPO against LeanPPO
+#                                          # (benchmark preset, 4,096 and 16,384 worlds)
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
 #   scripts/gpu_benchmarks.sh learn OUT [SEED...]
 #                                          # stump-v2's Random and ALP-GMM cells of these seeds
@@ -34,7 +36,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|speed|teachers|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|speed|teachers|update|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -89,6 +91,12 @@ teachers)  # the teacher's share of a run at 4,096 worlds, for the teachers with
     tail -n 2 "$out/teacher-$teacher.txt"
   done
   ;;
+update)  # whether LeanPPO's update costs more than rsl_rl's on a GPU (same rollout and weights)
+  for worlds in 4096 16384; do
+    python3 scripts/bench_rsl_update.py --device cuda --preset benchmark --worlds "$worlds" \
+      --rounds 5
+  done 2>&1 | tee "$out/update.txt"
+  ;;
 repeat)  # same seed twice, and the same run stopped at 500k and resumed, side by side
   for name in a b; do
     train alp-gmm 5 1000000 4096 500000 100 --out "$out/runs/repeat-$name" \
@@ -128,7 +136,7 @@ pack)
     mv "$packed" "$out/results.tgz"
   ;;
 *)
-  echo "unknown stage $stage: cpu, env, levers, speed, teachers, repeat, learn, summary or pack" >&2
+  echo "unknown stage $stage: cpu, env, levers, speed, teachers, update, repeat, learn, summary or pack" >&2
   exit 2
   ;;
 esac
