@@ -199,10 +199,8 @@ class Teacher(ABC):
             self._record_initial_state(task, np.asarray(state, dtype=np.float32))
 
     def set_value_estimator(self, fn: ValueEstimator, episodes: EpisodeValues | None = None):
-        """Give the teacher the student's value function: batch of states -> values; and
-        `episodes`, the same for several episodes in one call (each episode's values as `fn`
-        gives them; where the critic is on a GPU, one copy there and back for all of them),
-        by default `fn` on each."""
+        """The student's value function (a batch of states -> values) and `episodes`, each
+        episode's values as `fn` gives them in one call (one trip to a GPU; default: `fn`)."""
         self.value_estimator = fn
         self.episode_values = self._each_episode if episodes is None else episodes
 
