@@ -9,8 +9,8 @@ import pytest
 from acl3d.cli import main
 from acl3d.run_format.tables import read_csv
 from acl3d.teachers import make
-from acl3d.teachers.base import load_state
 from acl3d.teachers.expert_knowledge import toy_teacher_params
+from acl3d.teachers.state_files import load_state
 from acl3d.toy import ToyEnv, run_teacher
 from acl3d.training.curriculum_animation import curriculum_frames, teacher_states
 from acl3d.training.run_dir import RunDir

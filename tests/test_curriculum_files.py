@@ -18,7 +18,7 @@ from acl3d.analysis.curriculum_files import (
     write_episodes,
     write_teacher,
 )
-from acl3d.teachers.base import save_state
+from acl3d.teachers.state_files import save_state
 
 
 def _episode_log(run, n: int, seed: int = 0) -> dict[str, np.ndarray]:

@@ -16,8 +16,8 @@ from test_resume import STEPS, assert_same_run
 
 from acl3d.campaign.options import check_options, parse_set
 from acl3d.cli import main
-from acl3d.teachers.base import load_state
 from acl3d.teachers.controller import TeacherController
+from acl3d.teachers.state_files import load_state
 from acl3d.training import students, train
 from acl3d.training.exclusion import (
     ExcludingPPO,

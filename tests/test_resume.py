@@ -24,7 +24,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from acl3d import atomic_files
 from acl3d.cli import build_parser, main
 from acl3d.cli.train import options_from_args
-from acl3d.teachers.base import load_state
+from acl3d.teachers.state_files import load_state
 from acl3d.training import run_dir as run_dir_module
 from acl3d.training import students, train
 from acl3d.training.run_dir import RunDir

@@ -20,7 +20,7 @@ pytest.importorskip("rsl_rl")
 
 from acl3d import provenance  # noqa: E402
 from acl3d.cli import main  # noqa: E402
-from acl3d.teachers.base import load_state  # noqa: E402
+from acl3d.teachers.state_files import load_state  # noqa: E402
 from acl3d.training import students  # noqa: E402
 from acl3d.training.config import TrainConfig, validate  # noqa: E402
 from acl3d.training.torch_student import presets  # noqa: E402

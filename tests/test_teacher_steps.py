@@ -9,8 +9,8 @@ import pytest
 from test_teachers_classic import SPACES
 
 from acl3d.teachers import make
-from acl3d.teachers.base import load_state, save_state
 from acl3d.teachers.lessons import Lessons
+from acl3d.teachers.state_files import load_state, save_state
 from acl3d.teachers.terrain_levels import TerrainLevels
 
 SPACE = SPACES["2d"]

@@ -10,7 +10,7 @@ import pytest
 from test_teachers_classic import FAST, NAMES, SPACES, _reward
 
 from acl3d.teachers import make
-from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.state_files import load_state, save_state
 
 SPACE = SPACES["degenerate"]
 GMM_FAST = {"fit_rate": 40, "potential_ks": [2, 3]}

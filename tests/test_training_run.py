@@ -15,7 +15,7 @@ from gl_support import require_offscreen_gl
 from acl3d import results
 from acl3d.cli import main
 from acl3d.run_format.tables import read_csv
-from acl3d.teachers.base import load_state
+from acl3d.teachers.state_files import load_state
 from acl3d.training import TrainConfig, train
 from acl3d.training.curriculum import WorkerError
 from acl3d.training.run_dir import RunDir

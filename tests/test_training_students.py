@@ -9,7 +9,7 @@ from gymnasium.wrappers import TimeLimit
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from test_training_curriculum import CountingEnv
 
-from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.state_files import load_state, save_state
 from acl3d.training import checkpoint, students
 from acl3d.training.curriculum import CurriculumEnv
 

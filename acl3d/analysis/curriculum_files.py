@@ -30,7 +30,7 @@ import numpy as np
 from acl3d import validation as check
 from acl3d.run_format import layout
 from acl3d.run_format.tables import read_csv
-from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.state_files import load_state, save_state
 
 EPISODES_FILE = "episodes.npz"
 EPISODES_BUDGET = 96_000  # bytes of episodes.npz per run

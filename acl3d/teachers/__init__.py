@@ -13,7 +13,8 @@ import importlib
 import inspect
 
 from acl3d.extras import optional_dependency
-from acl3d.teachers.base import RunFacts, Teacher, load_state, save_state
+from acl3d.teachers.base import RunFacts, Teacher
+from acl3d.teachers.state_files import load_state, save_state
 
 # name -> "module:Class" or a registered class; modules are imported lazily so torch loads only
 # for teachers that need it.

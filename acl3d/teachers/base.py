@@ -8,13 +8,11 @@ state changes, so a bad call never corrupts what the teacher learned.
 
 from __future__ import annotations
 
-import json
 from abc import ABC, abstractmethod
 from collections import defaultdict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -22,6 +20,7 @@ import numpy as np
 from acl3d import validation
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
+from acl3d.teachers.state_files import load_state, save_state
 from acl3d.teachers.step_streams import MAX_STREAMS, check_streams
 
 # Sanity limits on what teachers are told: a reported task may lie outside the bounds (float
@@ -359,48 +358,3 @@ class Teacher(ABC):
     def _check_scalar(what: str, value) -> float:
         """A finite real number of sane size (returns beyond ±MAX_ABS_RETURN are corrupt data)."""
         return validation.real(what, value, -MAX_ABS_RETURN, MAX_ABS_RETURN)
-
-
-# ---------------------------------------------------------------------- open-format state files
-def _split_arrays(obj, arrays: dict, prefix: str):
-    if isinstance(obj, dict):
-        return {str(k): _split_arrays(v, arrays, f"{prefix}/{k}") for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_split_arrays(v, arrays, f"{prefix}/{i}") for i, v in enumerate(obj)]
-    if hasattr(obj, "detach") and hasattr(obj, "cpu"):  # torch tensor
-        obj = obj.detach().cpu().numpy()
-    if isinstance(obj, np.ndarray):
-        key = f"a{len(arrays)}"
-        arrays[key] = obj
-        return {"__array__": key}
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
-
-
-def _join_arrays(obj, arrays):
-    if isinstance(obj, dict):
-        if set(obj) == {"__array__"}:
-            return arrays[obj["__array__"]]
-        return {k: _join_arrays(v, arrays) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_join_arrays(v, arrays) for v in obj]
-    return obj
-
-
-def save_state(path, state: dict) -> None:
-    """Save a nested dict of JSON values and arrays as PATH.json + PATH.npz."""
-    path = Path(path)
-    arrays: dict[str, np.ndarray] = {}
-    tree = _split_arrays(state, arrays, "")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path.with_suffix(".npz"), **arrays)
-    path.with_suffix(".json").write_text(json.dumps(tree))
-
-
-def load_state(path) -> dict:
-    path = Path(path)
-    tree = json.loads(path.with_suffix(".json").read_text())
-    with np.load(path.with_suffix(".npz"), allow_pickle=False) as data:
-        arrays = {k: data[k] for k in data.files}
-    return _join_arrays(tree, arrays)

@@ -29,9 +29,9 @@ from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.task_space import TaskSpace
 from acl3d.teachers import make, teacher_class
 from acl3d.teachers import test_sets as test_sets_mod
-from acl3d.teachers.base import load_state, save_state
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
 from acl3d.teachers.expert_knowledge import teacher_params as expert_params
+from acl3d.teachers.state_files import load_state, save_state
 
 NB_PERIODICAL_SAMPLES = 100
 

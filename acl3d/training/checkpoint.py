@@ -16,7 +16,7 @@ import torch
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.state_files import load_state, save_state
 from acl3d.training.exclusion import ExcludingReplayBuffer
 from acl3d.training.run_dir import read_state
 

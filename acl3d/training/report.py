@@ -93,7 +93,7 @@ def _success_return(run: RunDir) -> float:
     the default profile's before the first dump)."""
     path = run.teacher_prefix.with_suffix(".json")
     if path.exists():
-        from acl3d.teachers.base import load_state
+        from acl3d.teachers.state_files import load_state
 
         recorded = load_state(run.teacher_prefix).get("success_return")
         if recorded is not None:
@@ -106,7 +106,7 @@ def _teacher_bounds(run: RunDir):
     path = run.teacher_prefix.with_suffix(".json")
     if not path.exists():
         return None
-    from acl3d.teachers.base import load_state
+    from acl3d.teachers.state_files import load_state
 
     dump = load_state(run.teacher_prefix)
     return np.asarray(dump["low"]), np.asarray(dump["high"])

@@ -44,7 +44,7 @@ from acl3d.run_format.checkpoints import (
     write_manifest,
 )
 from acl3d.run_format.status import read_status, write_status
-from acl3d.teachers.base import load_state
+from acl3d.teachers.state_files import load_state
 
 KEEP_CHECKPOINTS = 2
 _PACKAGES = ("acl3d", "stable-baselines3", "torch", "gymnasium", "mujoco", "numpy", "scikit-learn")

@@ -22,7 +22,7 @@ from acl3d import validation as check
 from acl3d.atomic_files import atomic_replace, atomic_state_files, removed_on_failure, temp_prefix
 from acl3d.envs.task_env import TaskEnv, task_env
 from acl3d.run_format.checkpoints import DamagedCheckpoint, verify_manifest
-from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.state_files import load_state, save_state
 from acl3d.training import checkpoint as ckpt
 from acl3d.training import students
 from acl3d.training.config import TrainConfig, excludes_exploratory, fixed_settings

@@ -31,7 +31,7 @@ from acl3d.atomic_files import atomic_replace, atomic_state_files, temp_prefix
 from acl3d.envs.many_worlds import check_many_worlds, many_worlds
 from acl3d.envs.tensor_vector import CpuTensorVectorEnv, TensorVectorEnv
 from acl3d.run_format.tables import CsvLog, truncate_csv
-from acl3d.teachers.base import load_state, save_state
+from acl3d.teachers.state_files import load_state, save_state
 from acl3d.training import checkpoint as ckpt
 from acl3d.training.config import (
     TrainConfig,
