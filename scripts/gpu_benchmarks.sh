@@ -22,6 +22,8 @@
 #                                          # 4,096 worlds (default 2M steps): the teacher's share
 #   scripts/gpu_benchmarks.sh update OUT   # rsl-ppo's update alone, rsl_rl's PPO against LeanPPO
 #                                          # (benchmark preset, 4,096 and 16,384 worlds)
+#   scripts/gpu_benchmarks.sh actions OUT  # the evaluator's actions a step: a forward a
+#                                          # snapshot against one stack (10 x 100 worlds)
 #   scripts/gpu_benchmarks.sh repeat OUT   # the same run twice and a resumed one (1M steps)
 #   scripts/gpu_benchmarks.sh learn OUT [SEED...]
 #                                          # stump-v2's Random and ALP-GMM cells of these seeds
@@ -36,7 +38,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|speed|teachers|update|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -96,6 +98,9 @@ update)  # whether LeanPPO's update costs more than rsl_rl's on a GPU (same roll
     python3 scripts/bench_rsl_update.py --device cuda --preset benchmark --worlds "$worlds" \
       --rounds 5
   done 2>&1 | tee "$out/update.txt"
+  ;;
+actions)  # what acting as one stack saves the evaluation pass a step (launches, host time)
+  python3 scripts/bench_policy_stack.py --device cuda 2>&1 | tee "$out/actions.txt"
   ;;
 repeat)  # same seed twice, and the same run stopped at 500k and resumed, side by side
   for name in a b; do

@@ -23,6 +23,7 @@ from acl3d.envs.batched_vector import BatchedVectorEnv
 from acl3d.envs.curriculum_wrapper import INFO_KEY
 from acl3d.envs.many_worlds import many_worlds
 from acl3d.training.evaluation import EvalResult, own_random_streams
+from acl3d.training.torch_student.policy_stack import PolicyStack
 
 CHECK_EVERY = 32  # steps between the many-world evaluator's host checks
 
@@ -133,23 +134,21 @@ class ManyWorldEvaluator(ChunkedEvaluator):
 
     def _play(self, policies, generators, chunk: np.ndarray, outcomes) -> None:
         """Each world's first episode, its results kept on the device as it ends; the host
-        asks whether any world still runs once every `CHECK_EVERY` steps only. Blocks beyond
-        the snapshots given replay the last one (their results are not read)."""
+        asks whether any world still runs once every `CHECK_EVERY` steps only. The snapshots
+        act as one `PolicyStack`; blocks beyond those given replay the last one on its mean
+        actions (their results are not read)."""
         worlds, n, k = self.worlds, self.num_worlds, len(chunk)
         index = np.minimum(chunk[0] + np.arange(n), chunk[-1])  # spare worlds replay the last
         worlds.tasks[:] = np.tile(self.tasks[index], (self.copies, 1))
         obs = worlds.reset(seed=self.seed + int(chunk[0]), period=n)
         spare = len(policies) - 1
-        blocks = [(policies[min(b, spare)], generators[b] if b <= spare else None)
-                  for b in range(self.copies)]  # fmt: skip
+        stack = PolicyStack([policies[min(b, spare)] for b in range(self.copies)])
+        generators = [generators[b] if b <= spare else None for b in range(self.copies)]
         world = torch.arange(n * self.copies, device=worlds.device)
         running = (world % n < k) & (world // n < len(policies))  # spare blocks: not waited for
         ended_with = None
         for step in itertools.count(1):
-            actions = torch.cat(
-                [policy(obs[b * n : (b + 1) * n], g) for b, (policy, g) in enumerate(blocks)]
-            )
-            obs, _, terminated, truncated, infos = worlds.step(actions)
+            obs, _, terminated, truncated, infos = worlds.step(stack(obs, generators))
             ended = (terminated | truncated) & running
             now = [infos[key] for key in ("episode_return", "episode_length", "success")]
             ended_with = now if ended_with is None else ended_with
