@@ -99,6 +99,17 @@ def test_mask_begin_and_success_threshold(device):
     assert b.initial_obs.sum(axis=1).tolist() == [3.0, 3.0, 0.0]
 
 
+@pytest.mark.parametrize("device", [None, "cpu"])
+def test_add_sums_without_booking_an_episode(device):
+    stats = EpisodeStatistics(2, 1, device=device)
+    stats.begin([0, 1], np.array([[1.0], [2.0]]))
+    for _ in range(3):
+        stats.add([1.5, -1.0])
+    assert len(stats.pop()) == 0 and stats.total_steps == 6
+    assert np.asarray(stats.returns).tolist() == [4.5, -3.0]
+    assert np.asarray(stats.lengths).tolist() == [3, 3]
+
+
 def test_state_round_trip_continues_the_running_episodes():
     a = EpisodeStatistics(N, DIM)
     play(a, 7)

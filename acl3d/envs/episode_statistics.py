@@ -189,6 +189,14 @@ class EpisodeStatistics:
         self.returns = self._xp.where(mask, 0.0, self.returns)
         self.lengths = self._xp.where(mask, 0, self.lengths)
 
+    def add(self, rewards) -> None:
+        """Add one step's rewards to every env's running sums, booking no episode: for passes
+        of one episode a world (evaluations), whose results are read from the step's infos,
+        so a step keeps no rows of every env for a `pop()` nobody makes."""
+        self.returns += self._xp.asarray(rewards, "float64").reshape(self.num_envs)
+        self.lengths += 1
+        self.total_steps += self.num_envs
+
     def step(self, rewards, terminated, truncated, successes=None):
         """Add one step of every env; returns the (N,) mask of episodes that ended. The ended
         episodes wait in `pop()`; their running sums restart at 0 (an auto-reset env's next

@@ -95,7 +95,8 @@ class ManyWorlds:
             observation; None: N / 16, at least 64 (at most N).
         autoreset: a finished world starts its next episode in the same step (True); False:
             it plays on, its results to be ignored, until `reset` (single-episode passes such
-            as evaluations: a step then never waits for the GPU).
+            as evaluations, which read each world's results from the infos of the step that
+            ends its episode: a step then never waits for the GPU, nor books episodes).
         constraint_rows, contact_slots: constraint rows and contact slots reserved per world
             (`WarpSimulation`); None: MuJoCo Warp's estimates from the model.
     """
@@ -259,8 +260,10 @@ class ManyWorlds:
             "episode_return": returns,
             "episode_length": self.elapsed.clone(),
         }
-        self.stats.step(reward, terminated, truncated, success)
-        if self.autoreset:
+        if not self.autoreset:  # a pass of one episode a world: results read from infos
+            self.stats.add(reward)
+        else:
+            self.stats.step(reward, terminated, truncated, success)
             ids = (terminated | truncated).nonzero()[:, 0].cpu().numpy()  # the one host sync
             if len(ids):
                 tasks = self._next_tasks(self.stats.pop(), ids)
