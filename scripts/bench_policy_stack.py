@@ -100,10 +100,10 @@ def main() -> None:
     hidden = presets.hyperparameters(args.preset, 4096)["hidden_dims"]
     print(f"actions of {args.snapshots} snapshots x {n} worlds on {device} (sampled, {hidden}), "
           f"median of {args.rounds} interleaved rounds of {args.calls} calls")  # fmt: skip
-    reference = statistics.median(seconds["one forward a snapshot"])
-    for name in ways:
-        median = statistics.median(seconds[name])
-        print(f"| {name} | {ops[name]} ops | {1e3 * median:.3f} ms | {reference / median:.2f}x |")
+    medians = {name: statistics.median(times) for name, times in seconds.items()}
+    for name, median in medians.items():
+        ratio = medians["one forward a snapshot"] / median
+        print(f"| {name} | {ops[name]} ops | {1e3 * median:.3f} ms | {ratio:.2f}x |")
     print(f"same actions: {'yes' if same else 'NO'}")
 
 
