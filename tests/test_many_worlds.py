@@ -335,15 +335,15 @@ def test_teachers_learning_from_steps_train_on_the_warp_worlds_and_resume_exactl
 
 
 def test_policies_evaluated_side_by_side_score_as_each_alone():
-    """Two policies, sampled actions, a test set in two chunks: each scores what it scores
-    alone, though one block's episodes outlast the other's."""
+    """Two policies, sampled actions, a test set in two chunks, and a spare third block: each
+    scores what it scores alone, though one block's episodes outlast the other's."""
     pytest.importorskip("rsl_rl")
     from acl3d.training.torch_student import rsl_ppo
     from acl3d.training.torch_student.evaluation import ManyWorldEvaluator
 
     tasks = np.array([[0.0, 4.0], [1.0, 3.0], [2.0, 5.0], [0.5, 2.0]])
     where = ("stump-tracks", "classic_bipedal", {"max_episode_steps": 300}, tasks, 7, 2, "cpu")
-    together, alone = ManyWorldEvaluator(*where, copies=2), ManyWorldEvaluator(*where, copies=1)
+    together, alone = ManyWorldEvaluator(*where, copies=3), ManyWorldEvaluator(*where, copies=1)
     spec = {"student": "rsl-ppo", "observation_size": alone.observation_shape[0],
             "action_size": 4, "hidden_dims": [16], "activation": "elu", "init_noise_std": 1.0}  # fmt: skip
     torch.manual_seed(0)
