@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import signal
 import sys
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +27,7 @@ from acl3d.training.callbacks import run_callbacks
 from acl3d.training.config import RESUME_MAY_CHANGE, TrainConfig, validate
 from acl3d.training.run_dir import RunDir, read_state
 from acl3d.training.session import Session, verify_checkpoint
+from acl3d.training.sigterm import sigterm_interrupts
 from acl3d.training.student_settings import round_steps, steps_per_collection, student_params
 
 
@@ -229,49 +228,41 @@ def _note(text: str) -> None:
     print(f"[acl3d] {text}", file=sys.stderr, flush=True)
 
 
-def _interrupt_on_sigterm(signum, frame):
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def _run(session: Session, target: int, user_callbacks, sections: dict, overwrite: bool):
     config, run = session.config, session.run
-    # Batch schedulers stop jobs with SIGTERM: end like Ctrl-C, with the status written.
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _interrupt_on_sigterm) if in_main else None
     started = False
-    try:
-        with session:
-            session.build_student()  # the last check: from here on the run really starts
-            _write_start(session, sections, overwrite)
-            started = True
-            model = session.model
-            start = int(model.num_timesteps)
-            if session.resume_from is not None:
-                for path in (run.evals_csv, run.evals_tasks_csv, run.episodes_csv):
-                    truncate_csv(path, "step", start)
-            if target > start:
-                model.learn(
-                    total_timesteps=target - start,
-                    callback=CallbackList([*run_callbacks(session, start), *user_callbacks]),
-                    progress_bar=config.progress_bar,
-                    reset_num_timesteps=session.resume_from is None,
-                    tb_log_name="train",
-                )
-            session.save_final_model()
-            session.dump_teacher()
-    except KeyboardInterrupt:
-        if started:
-            _best_effort(run.set_status, "interrupted", latest_checkpoint=_latest(run))
-            _best_effort(provenance.close, run.path, "interrupted", int(model.num_timesteps))
-        raise
-    except BaseException as exc:
-        if started:
-            _record_crash(run, exc)
-            _best_effort(provenance.close, run.path, "crashed", int(model.num_timesteps))
-        raise
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
+    # Batch schedulers stop jobs with SIGTERM: end like Ctrl-C, with the status written.
+    with sigterm_interrupts():
+        try:
+            with session:
+                session.build_student()  # the last check: from here on the run really starts
+                _write_start(session, sections, overwrite)
+                started = True
+                model = session.model
+                start = int(model.num_timesteps)
+                if session.resume_from is not None:
+                    for path in (run.evals_csv, run.evals_tasks_csv, run.episodes_csv):
+                        truncate_csv(path, "step", start)
+                if target > start:
+                    model.learn(
+                        total_timesteps=target - start,
+                        callback=CallbackList([*run_callbacks(session, start), *user_callbacks]),
+                        progress_bar=config.progress_bar,
+                        reset_num_timesteps=session.resume_from is None,
+                        tb_log_name="train",
+                    )
+                session.save_final_model()
+                session.dump_teacher()
+        except KeyboardInterrupt:
+            if started:
+                _best_effort(run.set_status, "interrupted", latest_checkpoint=_latest(run))
+                _best_effort(provenance.close, run.path, "interrupted", int(model.num_timesteps))
+            raise
+        except BaseException as exc:
+            if started:
+                _record_crash(run, exc)
+                _best_effort(provenance.close, run.path, "crashed", int(model.num_timesteps))
+            raise
     run.set_status("finished", steps=int(model.num_timesteps))
     provenance.close(run.path, "finished", int(model.num_timesteps))
     return TrainResult(run.path, int(model.num_timesteps), _last_eval(run))

@@ -4,15 +4,13 @@ provenance (finished, interrupted or crashed, as for SB3 students). `TorchRun` t
 
 from __future__ import annotations
 
-import signal
-import threading
-
 import torch
 
 from acl3d import provenance
 from acl3d.envs.batched import MAX_ENVS
 from acl3d.training.config import TrainConfig
 from acl3d.training.run_dir import RunDir
+from acl3d.training.sigterm import sigterm_interrupts
 from acl3d.training.torch_student.run import TorchRun
 
 
@@ -41,23 +39,19 @@ def train_run(
         },
     }
     torch.set_num_threads(config.torch_threads)
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _interrupt) if in_main else None
-    try:
-        steps = torch_run.train(target, sections, overwrite)
-    except KeyboardInterrupt:
-        if run.exists():
-            run.set_status("interrupted", latest_checkpoint=run.latest_checkpoint_name())
-        _close_provenance(torch_run, "interrupted")
-        raise
-    except BaseException as exc:
-        if run.exists():
-            run.set_crashed(exc)
-        _close_provenance(torch_run, "crashed")
-        raise
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
+    with sigterm_interrupts():
+        try:
+            steps = torch_run.train(target, sections, overwrite)
+        except KeyboardInterrupt:
+            if run.exists():
+                run.set_status("interrupted", latest_checkpoint=run.latest_checkpoint_name())
+            _close_provenance(torch_run, "interrupted")
+            raise
+        except BaseException as exc:
+            if run.exists():
+                run.set_crashed(exc)
+            _close_provenance(torch_run, "crashed")
+            raise
     run.set_status("finished", steps=steps, seconds_by_phase=torch_run.times.report())
     provenance.close(run.path, "finished", steps)
     return steps
@@ -72,7 +66,3 @@ def _close_provenance(torch_run: TorchRun, end: str) -> None:
         provenance.close(torch_run.run.path, end, torch_run.steps)
     except OSError:
         pass
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt(f"signal {signum}")
