@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import threading
 from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -30,6 +28,7 @@ from acl3d.campaign.lock import exclusive
 from acl3d.campaign.progress import ProgressView
 from acl3d.campaign.run_state import read_state, record_failure
 from acl3d.campaign.spec import CampaignSpec, RunSpec, check_runs
+from acl3d.training.sigterm import sigterm_interrupts
 
 MANIFEST = "campaign.yaml"
 
@@ -240,7 +239,7 @@ def run_campaign(
         pool = make_executor(executor, max_parallel, cpus.pop(), address)
         view = ProgressView(camp, runs, live=live)
         try:
-            with _sigterm_as_interrupt():  # installed after ray.init, which sets its own
+            with sigterm_interrupts():  # `kill PID` stops it like Ctrl-C; after ray.init's own
                 failed = _drive(pool, view, camp, runs, todo, retries)
         except BaseException:
             pool.shutdown(interrupt=True)
@@ -277,20 +276,3 @@ def _drive(pool, view, camp: CampaignDir, runs: list[RunSpec], todo: deque, retr
             view.note(f"{job.name}: attempt {attempts[job.name]} failed: {outcome.error}")
         view.refresh()
     return failed
-
-
-@contextmanager
-def _sigterm_as_interrupt():
-    """`kill PID` stops a campaign like Ctrl-C: running attempts end with their status written."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)

@@ -1,7 +1,8 @@
-"""SIGTERM ends a run like Ctrl-C: batch schedulers stop jobs with it, and a campaign's attempt
-gets it when its campaign process dies. The run's handler of the interruption then writes its
-status ("interrupted", the latest checkpoint); the SIGTERMs that follow the first are ignored
-until the run is over, so a second one cannot cut that write short and leave "running".
+"""SIGTERM ends a run (or a campaign) like Ctrl-C: batch schedulers stop jobs with it, and a
+campaign's attempt gets it when its campaign process dies. The run's handler of the interruption
+then writes its status ("interrupted", the latest checkpoint); the SIGTERMs that follow the first
+are ignored until the block is left, so a second one cannot cut that write short and leave
+"running".
 """
 
 from __future__ import annotations
