@@ -202,12 +202,9 @@ class EpisodeStatistics:
         episodes wait in `pop()`; their running sums restart at 0 (an auto-reset env's next
         step belongs to its next episode; `begin` sets its task)."""
         xp, n = self._xp, self.num_envs
-        rewards = xp.asarray(rewards, "float64").reshape(n)
         terminated = xp.asarray(terminated, "bool").reshape(n)
         truncated = xp.asarray(truncated, "bool").reshape(n)
-        self.returns += rewards
-        self.lengths += 1
-        self.total_steps += n
+        self.add(rewards)
         done = terminated | truncated
         if successes is not None:
             success = xp.asarray(successes, "bool").reshape(n)

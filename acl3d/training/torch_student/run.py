@@ -125,13 +125,12 @@ class TorchRun:
 
     def _values(self, states: np.ndarray) -> np.ndarray:
         """The critic's values of a batch of states (a teacher's value estimator)."""
-        states = torch.as_tensor(np.atleast_2d(states), dtype=torch.float32)
-        return self.student.value(states).cpu().numpy()
+        return self._episode_values([states])[0]
 
     def _episode_values(self, episodes: list[np.ndarray]) -> list[np.ndarray]:
-        """`_values` of each episode's states, with one copy to the device and one back for
-        all of them (not two waits for the GPU an episode); each episode still goes through
-        the critic alone, as `_values` would give it (a layer's bits can depend on its batch)."""
+        """The critic's values of each episode's states, with one copy to the device and one
+        back for all of them (not two waits for the GPU an episode); each episode still goes
+        through the critic alone (a layer's bits can depend on its batch)."""
         states = [np.atleast_2d(s) for s in episodes]
         sizes = [len(s) for s in states]
         together = torch.as_tensor(np.concatenate(states), dtype=torch.float32)
