@@ -14,6 +14,9 @@
 #                                          # MuJoCo Warp's reservations and with fewer constraint
 #                                          # rows (default 192) and contact slots (default 24)
 #                                          # per world, alone and together
+#   scripts/gpu_benchmarks.sh kernels OUT  # where a physics step's device time goes, kernel by
+#                                          # kernel: 3D Terrain's big quadruped and Stump
+#                                          # Tracks at 16,384 worlds (the heightfield's share)
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
@@ -38,7 +41,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -77,6 +80,13 @@ levers)  # what 3D Terrain's raw physics, which bounds its env, gains from small
   python3 scripts/bench_gpu.py --device cuda --env terrain3d --body big_quadru --sizes 16384 \
     --steps 100 --constraint-rows 0 "${3:-192}" --contact-slots 0 "${4:-24}" \
     --json "$out/bench_gpu_levers.json" 2>&1 | grep -v '^Module' | tee "$out/bench_gpu_levers.txt"
+  ;;
+kernels)  # why 3D Terrain's raw physics is slower than Stump Tracks' (kernel shares)
+  for env in "terrain3d --body big_quadru" stump-tracks; do
+    # shellcheck disable=SC2086  # env holds the family and its body
+    python3 scripts/profile_warp_kernels.py --device cuda --env $env --worlds 16384 --steps 20 \
+      --constraint-rows 192 --contact-slots 24
+  done 2>&1 | grep -v '^Module' | tee "$out/kernels.txt"
   ;;
 speed)
   steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}

@@ -1,0 +1,121 @@
+"""Where a many-world physics step's time goes, kernel by kernel (MuJoCo Warp).
+
+    python scripts/profile_warp_kernels.py --env terrain3d --body big_quadru --worlds 64
+    python scripts/profile_warp_kernels.py --device cuda --env terrain3d --body big_quadru \
+        --worlds 16384 --constraint-rows 192 --contact-slots 24
+
+Builds the family's many-world env as `bench_gpu.py` does (every world on its task with
+obstacles, its own terrain), then runs `--steps` raw physics steps (random controls, no rules)
+eagerly rather than as a captured graph, so that each kernel launch can be timed: on a GPU by
+Warp's CUDA activity timing (device time of each kernel), on Warp's CPU device by the wall time
+of each launch (a CPU kernel runs on the calling thread before the launch returns). Prints the
+kernels by their share of the total, the heightfield collision's share, and the time per step.
+Only the shares are comparable between the two devices: why a family's raw physics is slower
+on a GPU than another's is a question about the GPU's shares.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import time
+from collections import defaultdict
+
+import torch
+from bench_gpu import make_env
+
+from acl3d.sim.warp_backend import import_warp
+
+HFIELD_KERNEL = "ccd_hfield"  # MuJoCo Warp's heightfield-against-convex collision kernels
+
+
+@contextlib.contextmanager
+def cpu_launch_timing(warp, times: dict[str, float]):
+    """Add each kernel launch's wall time (seconds) to `times[kernel name]`."""
+    originals = {name: getattr(warp, name) for name in ("launch", "launch_tiled")}
+
+    def timed(launch):
+        def run(kernel, *args, **kwargs):
+            t0 = time.perf_counter()
+            out = launch(kernel, *args, **kwargs)
+            times[kernel.key] += time.perf_counter() - t0
+            return out
+
+        return run
+
+    for name, launch in originals.items():
+        setattr(warp, name, timed(launch))
+    try:
+        yield
+    finally:
+        for name, launch in originals.items():
+            setattr(warp, name, launch)
+
+
+def kernel_times(env, steps: int) -> dict[str, float]:
+    """Seconds per kernel name over `steps` eager raw physics steps of `env`'s simulation."""
+    warp, mjw = import_warp()
+    sim = env.sim
+    ctrl = sim.field("ctrl")
+    g = torch.Generator(device=env.device).manual_seed(1)
+    times: dict[str, float] = defaultdict(float)
+    cuda = env.device.type == "cuda"
+    with warp.ScopedDevice(sim._wp_device):
+        if cuda:
+            warp.timing_begin(cuda_filter=warp.TIMING_KERNEL)
+        with contextlib.nullcontext() if cuda else cpu_launch_timing(warp, times):
+            for _ in range(steps):
+                ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=env.device) * 2 - 1)
+                for _ in range(sim.nstep):
+                    mjw.step(sim.m, sim.d)
+        if cuda:
+            for result in warp.timing_end():
+                times[result.name] += result.elapsed / 1000.0
+    return times
+
+
+def short_name(name: str) -> str:
+    """A kernel's name without Warp's launch prefix and the hash suffix of its variant."""
+    name = name.removeprefix("forward kernel ").strip()
+    stem, _, tail = name.rpartition("_")
+    return stem if stem and len(tail) >= 6 and tail.isalnum() and not tail.isalpha() else name
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu")
+    p.add_argument(
+        "--env", default="terrain3d", help="stump-tracks, hexagon-tracks, parkour, terrain3d"
+    )
+    p.add_argument("--body", help="default: the env's")
+    p.add_argument("--worlds", type=int, default=64)
+    p.add_argument("--steps", type=int, default=20)
+    p.add_argument("--warmup", type=int, default=3)
+    p.add_argument("--constraint-rows", type=int, default=0, help="0: MuJoCo Warp's estimate")
+    p.add_argument("--contact-slots", type=int, default=0, help="0: MuJoCo Warp's estimate")
+    p.add_argument("--top", type=int, default=15, help="kernels listed")
+    a = p.parse_args()
+    env = make_env(
+        a.worlds, a.device, a.env, a.body, a.constraint_rows or None, a.contact_slots or None
+    )
+    kernel_times(env, a.warmup)  # loads every kernel module first
+    times = kernel_times(env, a.steps)
+    by_name: dict[str, float] = defaultdict(float)
+    for name, seconds in times.items():
+        by_name[short_name(name)] += seconds
+    total = sum(by_name.values())
+    hfield = sum(s for n, s in by_name.items() if HFIELD_KERNEL in n)
+    print(
+        f"{a.env}, {a.body or 'its default body'}, {a.worlds} worlds on {a.device}, "
+        f"{env.sim.constraint_rows} constraint rows and {env.sim.contact_slots} contact slots "
+        f"a world, {a.steps} steps of {env.sim.nstep} substeps"
+    )
+    print(f"kernel time per step {1000 * total / a.steps:.2f} ms ({len(by_name)} kernels)")
+    print(f"heightfield collision ({HFIELD_KERNEL}*): {hfield / total:.1%}")
+    print(f"{'share':>7} {'ms/step':>8}  kernel")
+    for name, seconds in sorted(by_name.items(), key=lambda kv: -kv[1])[: a.top]:
+        print(f"{seconds / total:>7.1%} {1000 * seconds / a.steps:>8.3f}  {name}")
+
+
+if __name__ == "__main__":
+    main()
