@@ -14,7 +14,8 @@ Only the shares are comparable between the two devices: why a family's raw physi
 on a GPU than another's is a question about the GPU's shares. On the CPU each launch's own cost
 (Python packing ~80 arguments) is timed with its kernel: at 64 worlds an eager step takes 3.7x
 a captured one, at 1,024 worlds 1.2x, so profile 1,024 worlds or more there. The warm-up steps
-let the bodies fall from their start and meet the ground: a step in the air has no contacts.
+let random controls fold the bodies onto the ground (before, 3D Terrain's quadruped touches it
+with its feet alone, or not at all, and steps are cheaper).
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ def main() -> None:
     env = make_env(
         a.worlds, a.device, a.env, a.body, a.constraint_rows or None, a.contact_slots or None
     )
-    kernel_times(env, a.warmup)  # loads every kernel module; the bodies fall to the ground
+    kernel_times(env, a.warmup)  # loads every kernel module; the bodies fold to the ground
     times = kernel_times(env, a.steps)
     by_name: dict[str, float] = defaultdict(float)
     for name, seconds in times.items():
