@@ -170,3 +170,17 @@ def test_a_process_started_by_multiprocessing_ends_after_its_refits():
     if process.exitcode is None:
         process.kill()
     assert process.exitcode == 0
+
+
+def test_state_files_store_torch_tensors_as_arrays(tmp_path):
+    """Torch weights in a teacher's state save as plain arrays (detached, on the CPU)."""
+    import torch
+
+    state = {
+        "w": torch.arange(3.0, requires_grad=True),
+        "nested": [torch.ones(2, dtype=torch.float64)],
+    }
+    save_state(tmp_path / "s", state)
+    loaded = load_state(tmp_path / "s")
+    np.testing.assert_array_equal(loaded["w"], np.arange(3.0, dtype=np.float32))
+    assert loaded["nested"][0].dtype == np.float64

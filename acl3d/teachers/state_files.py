@@ -4,6 +4,7 @@ PATH.json (the tree, each array replaced by a key) + PATH.npz (the arrays), no p
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,8 @@ def _split_arrays(obj, arrays: dict, prefix: str):
         return {str(k): _split_arrays(v, arrays, f"{prefix}/{k}") for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_split_arrays(v, arrays, f"{prefix}/{i}") for i, v in enumerate(obj)]
-    if hasattr(obj, "detach") and hasattr(obj, "cpu"):  # torch tensor
+    torch = sys.modules.get("torch")  # no tensor exists before torch is imported
+    if torch is not None and isinstance(obj, torch.Tensor):
         obj = obj.detach().cpu().numpy()
     if isinstance(obj, np.ndarray):
         key = f"a{len(arrays)}"
