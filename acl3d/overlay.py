@@ -37,10 +37,11 @@ def font_size_for(height: int) -> int:
 @lru_cache(maxsize=2048)
 def _glyph(char: str, size: int) -> tuple[np.ndarray, int]:
     """One character's coverage (0..255) on a full line height, and its advance in pixels."""
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw, ImageFont
 
     font = _font(size)
-    ascent, descent = font.getmetrics() if hasattr(font, "getmetrics") else (size, size // 4)
+    scalable = isinstance(font, ImageFont.FreeTypeFont)  # the bitmap font has no metrics
+    ascent, descent = font.getmetrics() if scalable else (size, size // 4)
     advance = max(1, round(font.getlength(char)))
     image = Image.new("L", (max(advance, font.getbbox(char)[2], 1), ascent + descent), 0)
     ImageDraw.Draw(image).text((0, 0), char, fill=255, font=font)
