@@ -13,7 +13,7 @@ Per world count, in one run on one device (random actions in [-1, 1], the env's 
   own terrain and caps) — what MuJoCo Warp gives;
 * env: `ManyWorlds.step` (servo caps, physics, rules, episode statistics, batched resets with
   their terrain), on a task with obstacles everywhere (Stump Tracks h=1, spacing 3; 3D Terrain
-  with hills, cross-slope, roughness and blocks), and its ratio to raw physics;
+  with roughness and blocks), and its ratio to raw physics;
 * resets' host share: the fraction of the env's time spent in the batched resets (terrain
   generation and upload included), timed with device synchronisation in a separate pass.
 Each cell runs `--warmup` steps first (graph capture, kernel loading). `--first-step` times a
@@ -39,6 +39,8 @@ from acl3d.envs.many_worlds import ManyWorlds, many_worlds
 # a task with obstacles everywhere, per env
 TASKS = {
     "stump-tracks": {"stump_height": 1.0, "obstacle_spacing": 3.0},
+    # slopes are in degrees: these hills and twist are nearly level (kept so that the figures of
+    # every session compare); the roughness and full-width blocks are the obstacles
     "terrain3d": {"hill_slope": 0.2, "cross_slope": 0.15, "roughness": 0.1, "block_height": 0.3},
     # water half way up and creepers: the walker swims, a climber has something to grasp
     "parkour": {"water_level": 0.5, "creepers_height": 2.0, "creepers_spacing": 1.0},
