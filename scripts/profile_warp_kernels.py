@@ -79,10 +79,12 @@ def kernel_times(env, steps: int) -> dict[str, float]:
 
 
 def short_name(name: str) -> str:
-    """A kernel's name without Warp's launch prefix and the hash suffix of its variant."""
-    name = name.removeprefix("forward kernel ").strip()
+    """A kernel's key: Warp's CUDA timing names a launch "forward kernel KEY_HASH", HASH the
+    first 8 hex digits of the kernel variant's hash; the CPU timing uses the key itself."""
+    name = name.removeprefix("forward kernel ")
     stem, _, tail = name.rpartition("_")
-    return stem if stem and len(tail) >= 6 and tail.isalnum() and not tail.isalpha() else name
+    variant = len(tail) == 8 and all(c in "0123456789abcdef" for c in tail)
+    return stem if stem and variant else name
 
 
 def main() -> None:
