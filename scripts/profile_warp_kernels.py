@@ -70,6 +70,8 @@ def kernel_times(env, steps: int) -> dict[str, float]:
         with contextlib.nullcontext() if cuda else cpu_launch_timing(warp, times):
             for _ in range(steps):
                 ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=env.device) * 2 - 1)
+                if cuda:  # Warp's stream reads the controls torch's stream wrote
+                    torch.cuda.synchronize(env.device)
                 for _ in range(sim.nstep):
                     mjw.step(sim.m, sim.d)
         if cuda:
