@@ -17,6 +17,8 @@
 #   scripts/gpu_benchmarks.sh kernels OUT  # where a physics step's device time goes, kernel by
 #                                          # kernel: 3D Terrain's big quadruped and Stump
 #                                          # Tracks at 16,384 worlds (the heightfield's share)
+#   scripts/gpu_benchmarks.sh terrain OUT  # 3D Terrain's raw physics at 16,384 worlds on other
+#                                          # grids and with its blocks as box geoms
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
@@ -41,7 +43,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|terrain|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(nproc)
@@ -87,6 +89,10 @@ kernels)  # why 3D Terrain's raw physics is slower than Stump Tracks' (kernel sh
     python3 scripts/profile_warp_kernels.py --device cuda --env $env --worlds 16384 --steps 20 \
       --constraint-rows 192 --contact-slots 24
   done 2>&1 | grep -v '^Module' | tee "$out/kernels.txt"
+  ;;
+terrain)  # what other terrain geometry would gain 3D Terrain's raw physics
+  python3 scripts/bench_terrain3d_collision.py --device cuda --worlds 16384 --steps 50 \
+    --rounds 1 2>&1 | grep -v '^Module' | tee "$out/terrain.txt"
   ;;
 speed)
   steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}

@@ -56,22 +56,22 @@ def cpu_launch_timing(warp, times: dict[str, float]):
             setattr(warp, name, launch)
 
 
-def kernel_times(env, steps: int) -> dict[str, float]:
-    """Seconds per kernel name over `steps` eager raw physics steps of `env`'s simulation."""
+def kernel_times(sim, steps: int) -> dict[str, float]:
+    """Seconds per kernel name over `steps` eager raw physics steps of `sim` (a
+    `WarpSimulation`), random controls."""
     warp, mjw = import_warp()
-    sim = env.sim
     ctrl = sim.field("ctrl")
-    g = torch.Generator(device=env.device).manual_seed(1)
+    g = torch.Generator(device=sim.device).manual_seed(1)
     times: dict[str, float] = defaultdict(float)
-    cuda = env.device.type == "cuda"
+    cuda = sim.device.type == "cuda"
     with warp.ScopedDevice(sim._wp_device):
         if cuda:
             warp.timing_begin(cuda_filter=warp.TIMING_KERNEL)
         with contextlib.nullcontext() if cuda else cpu_launch_timing(warp, times):
             for _ in range(steps):
-                ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=env.device) * 2 - 1)
+                ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=sim.device) * 2 - 1)
                 if cuda:  # Warp's stream reads the controls torch's stream wrote
-                    torch.cuda.synchronize(env.device)
+                    torch.cuda.synchronize(sim.device)
                 for _ in range(sim.nstep):
                     mjw.step(sim.m, sim.d)
         if cuda:
@@ -106,8 +106,8 @@ def main() -> None:
     env = make_env(
         a.worlds, a.device, a.env, a.body, a.constraint_rows or None, a.contact_slots or None
     )
-    kernel_times(env, a.warmup)  # loads every kernel module; the bodies fold to the ground
-    times = kernel_times(env, a.steps)
+    kernel_times(env.sim, a.warmup)  # loads every kernel module; the bodies fold to the ground
+    times = kernel_times(env.sim, a.steps)
     by_name: dict[str, float] = defaultdict(float)
     for name, seconds in times.items():
         by_name[short_name(name)] += seconds

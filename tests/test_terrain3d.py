@@ -48,6 +48,20 @@ def test_the_easiest_task_is_flat_and_full_width_walls_span_the_field():
     assert not walls[:, gen.grid.x < gen.start_pad].any()  # the start pad stays flat
 
 
+def test_a_coarser_grid_samples_the_same_ground_and_bad_spacings_are_refused():
+    fine, coarse = Terrain3DGenerator(4.0), Terrain3DGenerator(4.0, cell=0.5, row_cell=0.5)
+    assert (coarse.grid.cell, coarse.grid.row_cell, coarse.grid.nrow) == (0.5, 0.5, 13)
+    assert coarse.grid.x_min == fine.grid.x_min and coarse.grid.x_max >= fine.grid.x_max
+    task = {"hill_slope": 10.0, "cross_slope": 5.0}  # no random heights: one smooth surface
+    h_fine = fine.heights(task, np.random.default_rng(0))
+    h_coarse = coarse.heights(task, np.random.default_rng(0))
+    shared = h_fine[::5, ::5]  # every 1 m across, every 0.5 m along
+    np.testing.assert_allclose(h_coarse[::2, : shared.shape[1]], shared, atol=1e-12)
+    for name, value in (("cell", 0.0), ("row_cell", 2.0), ("cell", float("nan"))):
+        with pytest.raises(ValueError, match=name):
+            Terrain3DGenerator(4.0, **{name: value})
+
+
 def test_narrow_blocks_leave_room_to_walk_around_and_slopes_vary_across_the_field():
     gen = Terrain3DGenerator(start_pad=4.0)
     blocks = gen.heights({"block_height": 1.0, "block_width": 0.3}, np.random.default_rng(1))

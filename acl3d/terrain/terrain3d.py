@@ -23,6 +23,7 @@ from acl3d.task_space import TaskParameter, TaskSpace
 # 0.2 m of flat top between two 0.2 m ramps); 0.1 m across too would cost another ~15% of a step.
 CELL = 0.1
 ROW_CELL = 0.2
+CELL_RANGE = (0.05, 1.0)  # metres: the spacings a generator accepts (coarser: faster contacts)
 FIELD_HALF_WIDTH = 3.0  # metres: the field spans y in [-3, 3]; leaving it ends the episode
 COURSE_LENGTH = 20.0  # metres of terrain from the end of the start pad to the finish line
 RUN_OUT = 5.0  # metres of field after the finish line
@@ -120,13 +121,17 @@ class FieldGrid:
 
     x_min: float
     ncol: int
-    nrow: int = int(round(2 * FIELD_HALF_WIDTH / ROW_CELL)) + 1
-    cell: float = CELL
-    row_cell: float = ROW_CELL
+    nrow: int
+    cell: float
+    row_cell: float
 
     @classmethod
-    def spanning(cls, x_min: float, x_max: float) -> FieldGrid:
-        return cls(x_min, int(np.ceil((x_max - x_min) / CELL - 1e-9)) + 1)
+    def spanning(
+        cls, x_min: float, x_max: float, cell: float = CELL, row_cell: float = ROW_CELL
+    ) -> FieldGrid:
+        """The grid from x_min to at least x_max, across the whole field's width."""
+        ncol = int(np.ceil((x_max - x_min) / cell - 1e-9)) + 1
+        return cls(x_min, ncol, int(round(2 * FIELD_HALF_WIDTH / row_cell)) + 1, cell, row_cell)
 
     @property
     def x_max(self) -> float:
@@ -157,12 +162,17 @@ class Terrain3DGenerator:
     (`end_x` = start pad + `COURSE_LENGTH`). The start pad is flat; hills, twist and roughness
     start at its end, blocks `FIRST_BLOCK` m later. Every draw comes from the given generator
     in a fixed order (twist sign, roughness lattice, then per block: height, lateral position).
+    `cell` and `row_cell` space the points along and across the field (metres, in
+    `CELL_RANGE`): the env's are `CELL` and `ROW_CELL`; a coarser grid collides faster and
+    turns blocks into wedges (scripts/bench_terrain3d_collision.py measures both).
     """
 
-    def __init__(self, start_pad: float):
+    def __init__(self, start_pad: float, cell: float = CELL, row_cell: float = ROW_CELL):
+        cell = validation.real("cell", cell, *CELL_RANGE)
+        row_cell = validation.real("row_cell", row_cell, *CELL_RANGE)
         self.start_pad = float(start_pad)
         self.end_x = self.start_pad + COURSE_LENGTH
-        self.grid = FieldGrid.spanning(-BACK_MARGIN, self.end_x + RUN_OUT)
+        self.grid = FieldGrid.spanning(-BACK_MARGIN, self.end_x + RUN_OUT, cell, row_cell)
         g = self.grid
         self._along = np.maximum(g.x - self.start_pad, 0.0)  # metres into the course
         self._y = g.y

@@ -1,0 +1,149 @@
+"""What 3D Terrain's raw physics would gain from other terrain geometry (MuJoCo Warp).
+
+    python scripts/bench_terrain3d_collision.py                        # Warp's CPU device
+    python scripts/bench_terrain3d_collision.py --device cuda --worlds 16384 --steps 50
+
+3D Terrain's big quadruped steps its raw physics 4x slower on a GPU than the reference's one
+flat terrain, and its heightfield collision was the suspect: one thread runs GJK over every
+prism under a geom. This measures the routes that would change the terrain, on one device, in
+interleaved rounds, against today's model (blocks stamped into a 0.1 x 0.2 m grid):
+
+* the same field on coarser grids (0.2 x 0.2 m, the reference's; 0.5 x 0.5 m): the blocks
+  become wedges;
+* the ground alone on a 0.25 or 0.5 m grid, its blocks as box geoms (sunk 1 m into the ground,
+  the same for every world: where they stand does not change what a contact costs).
+
+Every world plays the bench task of `bench_gpu.py` (roughness 0.1 m, full-width 0.3 m blocks
+every 4.5 m) on its own draw of the roughness, with 192 constraint rows and 24 contact slots; the
+bodies start on their feet, random controls fold them onto the ground in the `--warmup` steps,
+then `--steps` are timed. Random controls do not carry the quadruped to the first block, so the
+blocks' own contacts are not measured: what is measured is the ground's grid and the geoms a
+world holds. The heightfield kernels' share of a step comes from `profile_warp_kernels.py`'s
+timing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import defaultdict
+
+import mujoco
+import numpy as np
+import torch
+from profile_warp_kernels import HFIELD_KERNEL, kernel_times
+
+from acl3d.bodies import make_body
+from acl3d.envs.arena import CONTROL_DT
+from acl3d.envs.terrain3d_arena import Terrain3DArena
+from acl3d.envs.world_families import TERRAIN
+from acl3d.sim.warp_backend import WarpSimulation
+from acl3d.terrain.terrain3d import (
+    BLOCK_LENGTH,
+    FIRST_BLOCK,
+    HEIGHT_RANGE,
+    Terrain3DGenerator,
+    start_pad_for,
+)
+
+TASK = {"roughness": 0.1, "block_height": 0.3}  # bench_gpu.py's, without its ~0 degree slopes
+SPACING = 4.0  # metres between blocks: the task space's default block_spacing
+SINK = 1.0  # metres a box block reaches below the ground
+VARIANTS = (  # (cell, row_cell, blocks as boxes)
+    (0.1, 0.2, False),
+    (0.2, 0.2, False),
+    (0.5, 0.5, False),
+    (0.25, 0.25, True),
+    (0.5, 0.5, True),
+)
+
+
+def build(cell: float, row_cell: float, boxes: bool, worlds: int, device: str):
+    """(simulation, label): big_quadru on its start pad in every world, the bench task's field."""
+    body = make_body("big_quadru")
+    generator = Terrain3DGenerator(start_pad_for(body.length), cell, row_cell)
+    arena = Terrain3DArena(body, generator)
+    model, task = arena.model, TASK
+    if boxes:
+        model, task = _with_box_blocks(arena), {**TASK, "block_height": 0.0}
+    model.opt.timestep = CONTROL_DT / body.frame_skip
+    lo, hi = HEIGHT_RANGE
+    heights = [generator.heights(task, np.random.default_rng(i)) for i in range(worlds)]
+    sim = WarpSimulation(model, worlds, body.frame_skip, TERRAIN, device, 192, 24)
+    rows = torch.as_tensor((np.stack(heights) - lo) / (hi - lo), device=sim.device)
+    sim.terrain("terrain").copy_(rows)
+    data = mujoco.MjData(model)
+    arena.bound.place(data, arena.start_x, body.spawn_height)
+    qpos = torch.as_tensor(data.qpos, device=sim.device).expand(worlds, -1)
+    qvel = torch.zeros((worlds, model.nv), device=sim.device)
+    sim.reset_worlds(torch.arange(worlds, device=sim.device), qpos, qvel)
+    g = generator.grid
+    label = f"{cell} x {row_cell} m grid ({g.ncol} x {g.nrow}), "
+    return sim, label + ("blocks as boxes" if boxes else "blocks in the heightfield")
+
+
+def _with_box_blocks(arena: Terrain3DArena) -> mujoco.MjModel:
+    """The arena's model with the task's full-width blocks as box geoms that collide as the
+    terrain does."""
+    spec, generator = arena.spec, arena.generator
+    terrain, height = spec.geom("terrain"), TASK["block_height"]
+    x, k = generator.start_pad + FIRST_BLOCK, 0
+    while x < generator.end_x:
+        spec.worldbody.add_geom(
+            name=f"block{k}", type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[BLOCK_LENGTH / 2, generator.grid.half_width, (height + SINK) / 2],
+            pos=[x + BLOCK_LENGTH / 2, 0.0, (height - SINK) / 2],
+            contype=terrain.contype, conaffinity=terrain.conaffinity, friction=terrain.friction,
+        )  # fmt: skip
+        x, k = x + BLOCK_LENGTH + SPACING, k + 1
+    return spec.compile()
+
+
+def raw_rate(sim, warmup: int, steps: int) -> float:
+    """Env steps/s of `steps` raw physics steps after `warmup` (random controls)."""
+    g = torch.Generator(device=sim.device).manual_seed(1)
+    ctrl = sim.field("ctrl")
+    for k in range(warmup + steps):
+        if k == warmup:
+            _sync(sim.device)
+            t0 = time.perf_counter()
+        ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=sim.device) * 2 - 1)
+        sim.step()
+    _sync(sim.device)
+    return sim.nworld * steps / (time.perf_counter() - t0)
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--worlds", type=int, default=1024)
+    p.add_argument("--steps", type=int, default=10)
+    p.add_argument("--warmup", type=int, default=40)
+    p.add_argument("--rounds", type=int, default=2)
+    a = p.parse_args()
+    rates: dict[str, list[float]] = defaultdict(list)
+    shares: dict[str, float] = {}
+    print(f"3D Terrain, big_quadru, {a.worlds} worlds on {a.device}, {a.steps} timed steps")
+    for _ in range(a.rounds):
+        for variant in VARIANTS:
+            sim, label = build(*variant, a.worlds, a.device)
+            rates[label].append(raw_rate(sim, a.warmup, a.steps))
+            if label not in shares:
+                times = kernel_times(sim, 3)
+                hfield = sum(s for name, s in times.items() if HFIELD_KERNEL in name)
+                shares[label] = hfield / sum(times.values())
+            del sim
+    today = np.mean(next(iter(rates.values())))
+    print(f"{'raw physics (env steps/s)':>28} {'against today':>14} {'heightfield':>12}  terrain")
+    for label, values in rates.items():
+        rounds = " / ".join(f"{v:,.0f}" for v in values)
+        print(f"{rounds:>28} {np.mean(values) / today:>13.2f}x {shares[label]:>12.1%}  {label}")
+
+
+if __name__ == "__main__":
+    main()
