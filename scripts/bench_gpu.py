@@ -64,17 +64,18 @@ def make_env(
     return env
 
 
-def raw_rate(env: ManyWorlds, steps: int, warmup: int) -> float:
-    sim, g = env.sim, torch.Generator(device=env.device).manual_seed(1)
+def raw_rate(sim, steps: int, warmup: int) -> float:
+    """Env steps/s of `sim` (a `WarpSimulation`) alone: random controls, no rules or resets."""
+    g = torch.Generator(device=sim.device).manual_seed(1)
     ctrl = sim.field("ctrl")
     for k in range(warmup + steps):
         if k == warmup:
-            _sync(env.device)
+            _sync(sim.device)
             t0 = time.perf_counter()
-        ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=env.device) * 2 - 1)
+        ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=sim.device) * 2 - 1)
         sim.step()
-    _sync(env.device)
-    return env.num_envs * steps / (time.perf_counter() - t0)
+    _sync(sim.device)
+    return sim.nworld * steps / (time.perf_counter() - t0)
 
 
 def env_rate(env: ManyWorlds, steps: int, warmup: int) -> tuple[float, float]:
@@ -170,7 +171,7 @@ def main() -> None:
             t0 = time.perf_counter()
             env = make_env(n, a.device, a.env, a.body, reserved or None, slots or None)
             build = time.perf_counter() - t0
-            raw = raw_rate(env, a.steps, a.warmup)
+            raw = raw_rate(env.sim, a.steps, a.warmup)
             env.reset(seed=0)
             rate, resets = env_rate(env, a.steps, a.warmup)
             share = reset_share(env, max(a.steps // 4, 10))

@@ -25,12 +25,12 @@ timing.
 from __future__ import annotations
 
 import argparse
-import time
 from collections import defaultdict
 
 import mujoco
 import numpy as np
 import torch
+from bench_gpu import raw_rate
 from profile_warp_kernels import HFIELD_KERNEL, kernel_times
 
 from acl3d.bodies import make_body
@@ -99,25 +99,6 @@ def _with_box_blocks(arena: Terrain3DArena) -> mujoco.MjModel:
     return spec.compile()
 
 
-def raw_rate(sim, warmup: int, steps: int) -> float:
-    """Env steps/s of `steps` raw physics steps after `warmup` (random controls)."""
-    g = torch.Generator(device=sim.device).manual_seed(1)
-    ctrl = sim.field("ctrl")
-    for k in range(warmup + steps):
-        if k == warmup:
-            _sync(sim.device)
-            t0 = time.perf_counter()
-        ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=sim.device) * 2 - 1)
-        sim.step()
-    _sync(sim.device)
-    return sim.nworld * steps / (time.perf_counter() - t0)
-
-
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu")
@@ -132,7 +113,7 @@ def main() -> None:
     for _ in range(a.rounds):
         for variant in VARIANTS:
             sim, label = build(*variant, a.worlds, a.device)
-            rates[label].append(raw_rate(sim, a.warmup, a.steps))
+            rates[label].append(raw_rate(sim, a.steps, a.warmup))
             if label not in shares:
                 times = kernel_times(sim, 3)
                 hfield = sum(s for name, s in times.items() if HFIELD_KERNEL in name)
