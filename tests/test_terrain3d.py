@@ -57,7 +57,12 @@ def test_a_coarser_grid_samples_the_same_ground_and_bad_spacings_are_refused():
     h_coarse = coarse.heights(task, np.random.default_rng(0))
     shared = h_fine[::5, ::5]  # every 1 m across, every 0.5 m along
     np.testing.assert_allclose(h_coarse[::2, : shared.shape[1]], shared, atol=1e-12)
-    for name, value in (("cell", 0.0), ("row_cell", 2.0), ("cell", float("nan"))):
+    for name, value in (
+        ("cell", 0.0),
+        ("row_cell", 2.0),
+        ("cell", float("nan")),
+        ("row_cell", 0.35),
+    ):
         with pytest.raises(ValueError, match=name):
             Terrain3DGenerator(4.0, **{name: value})
 

@@ -170,6 +170,12 @@ class Terrain3DGenerator:
     def __init__(self, start_pad: float, cell: float = CELL, row_cell: float = ROW_CELL):
         cell = validation.real("cell", cell, *CELL_RANGE)
         row_cell = validation.real("row_cell", row_cell, *CELL_RANGE)
+        rows = 2 * FIELD_HALF_WIDTH / row_cell
+        if abs(rows - round(rows)) > 1e-9:  # the rows span the field's width exactly
+            raise validation.fail(
+                "row_cell", row_cell, f"a spacing in {list(CELL_RANGE)} m that divides the "
+                f"field's {2 * FIELD_HALF_WIDTH:g} m width (e.g. 0.1, 0.2, 0.25, 0.5)",
+            )  # fmt: skip
         self.start_pad = float(start_pad)
         self.end_x = self.start_pad + COURSE_LENGTH
         self.grid = FieldGrid.spanning(-BACK_MARGIN, self.end_x + RUN_OUT, cell, row_cell)
