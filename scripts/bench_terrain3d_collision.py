@@ -14,12 +14,12 @@ interleaved rounds, against today's model (blocks stamped into a 0.1 x 0.2 m gri
   the same for every world: where they stand does not change what a contact costs).
 
 Every world plays the bench task of `bench_gpu.py` (roughness 0.1 m, full-width 0.3 m blocks
-every 4.5 m) on its own draw of the roughness, with 192 constraint rows and 24 contact slots; the
-bodies start on their feet, random controls fold them onto the ground in the `--warmup` steps,
-then `--steps` are timed. Random controls do not carry the quadruped to the first block, so the
-blocks' own contacts are not measured: what is measured is the ground's grid and the geoms a
-world holds. The heightfield kernels' share of a step comes from `profile_warp_kernels.py`'s
-timing.
+every 4.5 m) on one of 256 draws of the roughness, with 192 constraint rows and 24 contact
+slots; the bodies start on their feet, random controls fold them onto the ground in the
+`--warmup` steps, then `--steps` are timed. Random controls do not carry the quadruped to the
+first block, so the blocks' own contacts are not measured: what is measured is the ground's grid
+and the geoms a world holds. The heightfield kernels' share of a step comes from
+`profile_warp_kernels.py`'s timing.
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ from acl3d.terrain.terrain3d import (
 TASK = {"roughness": 0.1, "block_height": 0.3}  # bench_gpu.py's, without its ~0 degree slopes
 SPACING = 4.0  # metres between blocks: the task space's default block_spacing
 SINK = 1.0  # metres a box block reaches below the ground
+DRAWS = 256  # distinct draws of the roughness, repeated over the worlds (0.3 ms each on a CPU)
 VARIANTS = (  # (cell, row_cell, blocks as boxes)
     (0.1, 0.2, False),
     (0.2, 0.2, False),
@@ -68,10 +69,11 @@ def build(cell: float, row_cell: float, boxes: bool, worlds: int, device: str):
         model, task = _with_box_blocks(arena), {**TASK, "block_height": 0.0}
     model.opt.timestep = CONTROL_DT / body.frame_skip
     lo, hi = HEIGHT_RANGE
-    heights = [generator.heights(task, np.random.default_rng(i)) for i in range(worlds)]
+    draws = [generator.heights(task, np.random.default_rng(i)) for i in range(min(worlds, DRAWS))]
     sim = WarpSimulation(model, worlds, body.frame_skip, TERRAIN, device, 192, 24)
-    rows = torch.as_tensor((np.stack(heights) - lo) / (hi - lo), device=sim.device)
-    sim.terrain("terrain").copy_(rows)
+    rows = torch.as_tensor((np.stack(draws) - lo) / (hi - lo), device=sim.device, dtype=sim.dtype)
+    world = torch.arange(worlds, device=sim.device)
+    sim.terrain("terrain").copy_(rows[world % len(draws)])
     data = mujoco.MjData(model)
     arena.bound.place(data, arena.start_x, body.spawn_height)
     qpos = torch.as_tensor(data.qpos, device=sim.device).expand(worlds, -1)
