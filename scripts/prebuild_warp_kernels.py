@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -35,15 +36,28 @@ def parse_env(text: str) -> tuple[str, dict]:
     return env, ({"body": body} if body else {})
 
 
+@contextmanager
+def launches_through(wp, wrap):
+    """Within the block, every kernel launch (`wp.launch`, `wp.launch_tiled`) goes through
+    `wrap(launch)`, a function taking the launch's arguments; the originals are back afterwards."""
+    originals = {name: getattr(wp, name) for name in ("launch", "launch_tiled")}
+    for name, launch in originals.items():
+        setattr(wp, name, wrap(launch))
+    try:
+        yield
+    finally:
+        for name, launch in originals.items():
+            setattr(wp, name, launch)
+
+
 class LaunchLog:
-    """The (module, block size) pairs of every kernel launch, CUDA's block size as requested."""
+    """The (module, block size) pairs of every kernel launch, CUDA's block size as requested
+    (`launches_through(wp, log.recording)`)."""
 
-    def __init__(self, wp):
-        self.wp, self.variants = wp, {}
-        self._launch, self._launch_tiled = wp.launch, wp.launch_tiled
-        wp.launch, wp.launch_tiled = self._wrap(self._launch), self._wrap(self._launch_tiled)
+    def __init__(self):
+        self.variants = {}
 
-    def _wrap(self, launch):
+    def recording(self, launch):
         def recorded(kernel, *args, **kwargs):
             module = kernel.module
             block_dim = kwargs.get("block_dim") or module.options["block_dim"]
@@ -51,9 +65,6 @@ class LaunchLog:
             return launch(kernel, *args, **kwargs)
 
         return recorded
-
-    def close(self) -> None:
-        self.wp.launch, self.wp.launch_tiled = self._launch, self._launch_tiled
 
 
 def exercise(env: str, kwargs: dict, steps: int) -> None:
@@ -90,15 +101,14 @@ def main() -> None:
 
     wp, _ = import_warp()
     wp.init()
-    log = LaunchLog(wp)
+    log = LaunchLog()
     try:
-        for text in args.env or ["stump-tracks"]:
-            env, kwargs = parse_env(text)
-            exercise(env, kwargs, args.steps)
+        with launches_through(wp, log.recording):
+            for text in args.env or ["stump-tracks"]:
+                env, kwargs = parse_env(text)
+                exercise(env, kwargs, args.steps)
     except ValueError as exc:  # an env or body the many-world simulation does not run
         p.error(f"--env {text}: {exc}")
-    finally:
-        log.close()
 
     start, built = time.perf_counter(), []
     for (_name, block_dim), module in sorted(log.variants.items(), key=lambda kv: kv[0]):

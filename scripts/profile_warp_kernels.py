@@ -27,16 +27,16 @@ from collections import defaultdict
 
 import torch
 from bench_gpu import make_env
+from prebuild_warp_kernels import launches_through
 
 from acl3d.sim.warp_backend import import_warp
 
 HFIELD_KERNEL = "ccd_hfield"  # MuJoCo Warp's heightfield-against-convex collision kernels
 
 
-@contextlib.contextmanager
-def cpu_launch_timing(warp, times: dict[str, float]):
-    """Add each kernel launch's wall time (seconds) to `times[kernel name]`."""
-    originals = {name: getattr(warp, name) for name in ("launch", "launch_tiled")}
+def timing_each_launch(times: dict[str, float]):
+    """A `launches_through` wrapper adding each launch's wall time (seconds) to
+    `times[kernel name]`."""
 
     def timed(launch):
         def run(kernel, *args, **kwargs):
@@ -47,13 +47,7 @@ def cpu_launch_timing(warp, times: dict[str, float]):
 
         return run
 
-    for name, launch in originals.items():
-        setattr(warp, name, timed(launch))
-    try:
-        yield
-    finally:
-        for name, launch in originals.items():
-            setattr(warp, name, launch)
+    return timed
 
 
 def kernel_times(sim, steps: int) -> dict[str, float]:
@@ -67,7 +61,9 @@ def kernel_times(sim, steps: int) -> dict[str, float]:
     with warp.ScopedDevice(sim._wp_device):
         if cuda:
             warp.timing_begin(cuda_filter=warp.TIMING_KERNEL)
-        with contextlib.nullcontext() if cuda else cpu_launch_timing(warp, times):
+        with (
+            contextlib.nullcontext() if cuda else launches_through(warp, timing_each_launch(times))
+        ):
             for _ in range(steps):
                 ctrl.copy_(torch.rand(ctrl.shape, generator=g, device=sim.device) * 2 - 1)
                 if cuda:  # Warp's stream reads the controls torch's stream wrote
