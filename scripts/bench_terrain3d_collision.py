@@ -40,7 +40,6 @@ from acl3d.envs.world_families import TERRAIN
 from acl3d.sim.warp_backend import WarpSimulation
 from acl3d.terrain.terrain3d import (
     BLOCK_LENGTH,
-    FIRST_BLOCK,
     HEIGHT_RANGE,
     Terrain3DGenerator,
     start_pad_for,
@@ -89,15 +88,13 @@ def _with_box_blocks(arena: Terrain3DArena) -> mujoco.MjModel:
     terrain does."""
     spec, generator = arena.spec, arena.generator
     terrain, height = spec.geom("terrain"), TASK["block_height"]
-    x, k = generator.start_pad + FIRST_BLOCK, 0
-    while x < generator.end_x:
+    for k, x in enumerate(generator.block_starts(SPACING)):
         spec.worldbody.add_geom(
             name=f"block{k}", type=mujoco.mjtGeom.mjGEOM_BOX,
             size=[BLOCK_LENGTH / 2, generator.grid.half_width, (height + SINK) / 2],
             pos=[x + BLOCK_LENGTH / 2, 0.0, (height - SINK) / 2],
             contype=terrain.contype, conaffinity=terrain.conaffinity, friction=terrain.friction,
         )  # fmt: skip
-        x, k = x + BLOCK_LENGTH + SPACING, k + 1
     return spec.compile()
 
 

@@ -10,7 +10,7 @@ the block width. Flat ground is at height 0.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -225,15 +225,21 @@ class Terrain3DGenerator:
         width = p["block_width"] * 2 * g.half_width
         if width <= 0.0 or p["block_height"] <= 0.0:
             return
-        x = self.start_pad + FIRST_BLOCK
-        while x < self.end_x:
+        for x in self.block_starts(p["block_spacing"]):
             height = max(0.0, rng.normal(p["block_height"], BLOCK_NOISE))
             centre = rng.uniform(-g.half_width + width / 2, g.half_width - width / 2)
             cols = _points(g.x_min, g.cell, g.ncol, x, x + BLOCK_LENGTH, closed=False)
             lo, hi = centre - width / 2, centre + width / 2
             rows = _points(-g.half_width, g.row_cell, g.nrow, lo, hi, closed=True)
             h[rows, cols] += height
-            x += BLOCK_LENGTH + p["block_spacing"]
+
+    def block_starts(self, spacing: float) -> Iterator[float]:
+        """Where each row of blocks begins along x (metres), `spacing` m of ground between
+        rows, from `FIRST_BLOCK` m into the course to its end."""
+        x = self.start_pad + FIRST_BLOCK
+        while x < self.end_x:
+            yield x
+            x += BLOCK_LENGTH + spacing
 
 
 def _points(start: float, cell: float, n: int, lo: float, hi: float, closed: bool) -> slice:
