@@ -21,6 +21,7 @@ TIERS: tuple[tuple[str, ...], ...] = (
     ("task_space", "run_format"),
     ("curriculum_profile", "provenance"),
     ("terrain", "bodies", "teachers", "toy", "playback"),
+    ("devices",),
     ("sim",),
     ("envs",),
     ("acl3d",),

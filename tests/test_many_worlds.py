@@ -388,6 +388,12 @@ def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
         )  # fmt: skip
     with pytest.raises(ValueError, match="actions: non-finite"):
         envs.step(np.full((2, 4), np.nan, np.float32))
+    for device in ("tpu", "cuda:x", "meta") + (() if torch.cuda.is_available() else ("cuda",)):
+        with pytest.raises(ValueError, match=rf"device='{device}'; valid: cpu"):
+            gym.make_vec(
+                "acl3d/StumpTracks-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                device=device,
+            )  # fmt: skip
 
 
 def test_the_many_world_simulation_takes_more_worlds_than_the_cpu_batched_env():

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from gymnasium.utils import seeding
 
-from acl3d import validation
+from acl3d import devices, validation
 from acl3d.envs import REGISTRY, env_id
 from acl3d.envs.arena import CONTROL_DT
 from acl3d.envs.episode_statistics import CurriculumSync, EpisodeStatistics
@@ -73,7 +73,7 @@ def many_worlds(
     registration = check_many_worlds(name)
     kwargs = {**registration.kwargs, **env_kwargs}
     steps = kwargs.pop("max_episode_steps", 2000)
-    device = torch.device(device)
+    device = devices.usable(device)
     family = FAMILIES[registration.entry_point](device, DTYPE, **kwargs)
     return ManyWorlds(
         num_envs, family, curriculum=curriculum, max_episode_steps=steps, autoreset=autoreset,

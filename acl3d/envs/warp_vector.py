@@ -8,7 +8,8 @@ observations, rewards and flags are torch tensors on that device (actions may be
 arrays), every world of one `ManyWorlds`, finished worlds reset in the same step
 (`AutoresetMode.SAME_STEP`; `infos["final_obs"]` holds their last observations). A `teacher`
 (or a `curriculum_sync`) picks each world's next task; without one, `reset(options={"task": t})`
-sets every world's task. Stump Tracks, Hexagon Tracks and 3D Terrain; Parkour is refused by name.
+sets every world's task. Every family: Stump Tracks, Hexagon Tracks, Parkour (its movable
+creepers refused by name: they stay on the CPU batched env) and 3D Terrain.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ class WarpVectorEnv(VectorEnv):
     Args:
         env_id: an acl3d id or short name of a family the many-world simulation runs.
         num_envs: worlds, in [1, 2**20].
-        device: "cuda" (a GPU) or "cpu" (Warp's CPU device).
+        device: "cuda" (a GPU, or "cuda:N") or "cpu" (Warp's CPU device); one this machine
+            lacks is refused naming it.
         teacher / curriculum_sync: where each world's next task comes from (exclusive).
         autoreset_mode: SAME_STEP only (the worlds reset within the step that ends them).
         **env_kwargs: the single env's arguments (body, planar, max_episode_steps, ...).

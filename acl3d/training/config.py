@@ -307,9 +307,9 @@ def cpu_cores() -> int:
 def _check_machine_bounds(config: TrainConfig, on_this_machine: bool = True) -> None:
     """Upper bounds on counts that cost memory, processes or threads (the lower ones are above);
     those relative to this machine's cores and devices only `on_this_machine`."""
+    from acl3d.devices import check_device
     from acl3d.envs.batched import MAX_ENVS
     from acl3d.sim.worlds import MAX_WORLDS
-    from acl3d.training.devices import check_device
 
     check.integer(
         "n_envs", config.effective_n_envs, 1, MAX_WORLDS if uses_many_worlds(config) else MAX_ENVS
