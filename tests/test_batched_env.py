@@ -195,6 +195,9 @@ def test_bad_construction_arguments_raise(kwargs, match):
 
 def test_bad_actions_raise_and_change_nothing():
     a, b = BatchedEnvs("stump-tracks", 2, threads=1), BatchedEnvs("stump-tracks", 2, threads=1)
+    a.reset_one(0, seed=0)
+    with pytest.raises(gym.error.ResetNeeded, match="reset"):  # sub-env 1 has no episode yet
+        a.step(np.zeros((2, 4)))
     a.reset(seed=0)
     b.reset(seed=0)
     bad_nan = np.zeros((2, 4))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -242,12 +243,16 @@ def test_without_autoreset_finished_worlds_play_on_until_reset():
 def test_a_restored_state_continues_as_the_original(worlds):
     worlds.step(_actions(worlds, 11))
     saved = worlds.get_state()
+    fresh = ManyWorldTracks(2, device="cpu", body="classic_bipedal")
+    with pytest.raises(gym.error.ResetNeeded, match="reset"):  # no episode to step yet
+        fresh.step(_actions(fresh, 20))
     runs = []
-    for _ in range(2):
-        worlds.set_state(saved)
-        out = [worlds.step(_actions(worlds, 20 + k)) for k in range(3)]
+    for env in (worlds, worlds, fresh):  # restored twice, and into new worlds (no reset needed)
+        env.set_state(saved)
+        out = [env.step(_actions(env, 20 + k)) for k in range(3)]
         runs.append((out[-1][0].clone(), torch.stack([o[1] for o in out])))
-    assert torch.equal(runs[0][0], runs[1][0]) and torch.equal(runs[0][1], runs[1][1])
+    for obs, rewards in runs[1:]:
+        assert torch.equal(runs[0][0], obs) and torch.equal(runs[0][1], rewards)
 
 
 def test_rsl_ppo_trains_on_the_warp_worlds_and_resumes_exactly(tmp_path):

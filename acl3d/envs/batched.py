@@ -125,6 +125,7 @@ class BatchedEnvs:
             for i, env in enumerate(self.envs):
                 env.rows = self.rows.row(i)
         self._rows_physics = [self.physics.row(i) for i in range(num_envs)]
+        self._running = False  # every sub-env reset or restored: each stays in an episode
 
     # ------------------------------------------------------------------ resets
     def reset_one(self, i: int, seed: int | None = None, options: dict | None = None):
@@ -181,7 +182,12 @@ class BatchedEnvs:
         return a
 
     def step(self, actions) -> EngineStep:
-        """One step of every sub-env as arrays (no reset of finished sub-envs)."""
+        """One step of every sub-env as arrays (no reset of finished sub-envs); before every
+        sub-env has been reset, gymnasium's ResetNeeded (nothing changed)."""
+        if not self._running:
+            self._running = all(env.physics.stepped for env in self.envs)
+            if not self._running:
+                raise gym.error.ResetNeeded("step() before reset(): call reset() first")
         a = self.check_actions(actions)
         if self.vectorised:
             played = self.rules.before_physics(self.physics, a, self.rows)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import secrets
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 import torch
@@ -151,6 +152,7 @@ class ManyWorlds:
         self._rngs: list = []  # per-world streams of a CPU terrain generator
         self._home_qpos, self._push_scale = self._home_state()
         self.obs = torch.zeros((n, self.observation_size), **f)
+        self._running = False  # every world in an episode: after reset() or set_state()
 
     def _home_state(self) -> tuple[np.ndarray, float]:
         """The placed body's qpos and the push's velocity per unit of force (`Arena.place_body`)."""
@@ -182,6 +184,7 @@ class ManyWorlds:
             self._generator.manual_seed(seed)
             block = ids[lo : lo + period]
             self.obs = self._reset_worlds(block, tasks[block], self.obs)
+        self._running = True
         return self.obs
 
     def _next_tasks(self, finished, ids: np.ndarray) -> np.ndarray:
@@ -233,7 +236,9 @@ class ManyWorlds:
     def step(self, actions: torch.Tensor):
         """(obs, rewards, terminated, truncated, infos) with same-step autoreset; infos:
         final_obs, success, unstable, episode_return and episode_length (rows of finished
-        worlds)."""
+        worlds). Before `reset` or `set_state`: gymnasium's ResetNeeded."""
+        if not self._running:
+            raise gym.error.ResetNeeded("step() before reset(): call reset() first")
         if actions.shape != (self.num_envs, self.action_size):
             raise ValueError(
                 f"actions: expected shape {(self.num_envs, self.action_size)}, "
@@ -318,6 +323,7 @@ class ManyWorlds:
         self._rngs = [seeding.np_random(None)[0] for _ in state["rngs"]]
         for rng, rng_state in zip(self._rngs, state["rngs"]):
             rng.bit_generator.state = rng_state
+        self._running = True
 
     def close(self) -> None:
         self.template.close()
