@@ -385,6 +385,8 @@ def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
     taught.reset(seed=1)
     for _ in range(5):
         *_, truncated, infos = taught.step(np.zeros((2, 4), np.float32))
+        for key in ("final_obs", "success", "episode_return"):  # Gymnasium's info layout
+            assert torch.equal(infos["_" + key], truncated)
     assert bool(truncated.all()) and teacher.nb_episodes == 2  # the teacher saw both episodes
     with pytest.raises(ValueError, match="movable_creepers=True on the many-world"):
         gym.make_vec(
@@ -393,6 +395,9 @@ def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
         )  # fmt: skip
     with pytest.raises(ValueError, match="actions: non-finite"):
         envs.step(np.full((2, 4), np.nan, np.float32))
+    for bad in ([["0.1"] * 4] * 2, torch.ones((2, 4), dtype=torch.bool), np.full((2, 4), 1j)):
+        with pytest.raises(ValueError, match="actions: expected real numbers"):
+            envs.step(bad)
     for device in ("tpu", "cuda:x", "meta") + (() if torch.cuda.is_available() else ("cuda",)):
         with pytest.raises(ValueError, match=rf"device='{device}'; valid: cpu"):
             gym.make_vec(

@@ -83,12 +83,23 @@ class WarpVectorEnv(VectorEnv):
         return self.worlds.reset(seed), {}
 
     def step(self, actions):
-        """(obs, rewards, terminated, truncated, infos) as tensors on the device."""
+        """(obs, rewards, terminated, truncated, infos) as tensors on the device; each info
+        (final_obs, success, unstable, episode_return, episode_length) holds the rows of the
+        worlds that finished, which `infos["_" + key]` flags, as Gymnasium's vector envs lay
+        infos out."""
         if not isinstance(actions, torch.Tensor):
-            actions = torch.as_tensor(np.asarray(actions, dtype=np.float32))
+            array = np.asarray(actions)
+            if array.dtype.kind not in "iuf":  # bools, complex numbers, strings and objects
+                raise ValueError(f"actions: expected real numbers, got dtype {array.dtype}")
+            actions = torch.as_tensor(array)
+        elif actions.dtype == torch.bool or actions.is_complex():
+            raise ValueError(f"actions: expected real numbers, got dtype {actions.dtype}")
         if not bool(torch.isfinite(actions).all()):
             raise ValueError("actions: non-finite values")
-        return self.worlds.step(actions.to(self.device))
+        obs, reward, terminated, truncated, infos = self.worlds.step(actions.to(self.device))
+        finished = terminated | truncated
+        infos.update({f"_{key}": finished for key in list(infos)})
+        return obs, reward, terminated, truncated, infos
 
     def close_extras(self, **kwargs) -> None:
         self.worlds.close()
