@@ -134,6 +134,12 @@ def test_evaluate_cli_on_run_dir(trained_run, tmp_path, capsys):
     rows = read_csv(out)
     assert {"stump_height", "obstacle_spacing"} <= set(rows)
     assert len(rows["return"]) == 4 and all(length <= 60 for length in rows["length"])
+    # a size for the run's own test set is refused, not ignored; with a generated set it holds
+    assert main(["evaluate", str(trained_run), "--nb-test-episodes", "9"]) == 2
+    assert "--nb-test-episodes=9; valid: with --test-set only" in capsys.readouterr().err
+    argv = ["evaluate", str(trained_run), "--test-set", "grid", "--nb-test-episodes", "9"]
+    assert main([*argv, "--out", str(out)]) == 0
+    assert len(read_csv(out)["return"]) == 9
 
 
 def test_evaluate_reproduces_the_runs_last_evaluation(trained_run, tmp_path, capsys):

@@ -38,7 +38,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a run directory, an SB3 model zip or a torch-native student's policy file",
     )
     add_test_set_arguments(
-        p, "the run's test set, else the environment's default set", TrainConfig().nb_test_episodes
+        p,
+        "the run's test set, else the environment's default set",
+        TrainConfig().nb_test_episodes,
+        unset_is_none=True,  # given with a run's own test set: refused, not ignored
     )
     p.add_argument("--episodes", type=int, default=1, help="episodes per test task (default 1)")
     p.add_argument("--env", help="track (default: the run's; required for a bare model zip)")
@@ -306,10 +309,19 @@ def run(args) -> int:
     finally:
         probe.close()
     if args.test_set is None and t.tasks is not None:
+        if args.nb_test_episodes is not None:
+            raise check.fail(
+                "--nb-test-episodes",
+                args.nb_test_episodes,
+                f"with --test-set only: the run's own test set ({len(t.tasks)} tasks) is played "
+                "as it is (add --test-set grid or uniform to generate one of this size)",
+            )
         tasks, test_set = t.tasks, "the run's test set"
     else:
+        nb = args.nb_test_episodes
+        nb = TrainConfig().nb_test_episodes if nb is None else nb
         try:
-            tasks = test_sets.resolve(args.test_set, space, args.nb_test_episodes, profile)
+            tasks = test_sets.resolve(args.test_set, space, nb, profile)
         except ValueError as exc:
             raise ValueError(option_message(str(exc))) from None
         test_set = f"test set {args.test_set or 'default'}"

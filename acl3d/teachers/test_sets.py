@@ -64,7 +64,9 @@ def _points_per_dim(nb_tasks: int, n_free: int) -> int:
     k = int(math.floor(nb_tasks ** (1.0 / n_free) + 1e-9))
     if k < 2:
         raise ValueError(
-            f"grid test set: nb_tasks={nb_tasks} gives fewer than 2 points per dimension over {n_free} varying dimensions; use a larger nb_tasks or 'uniform'"
+            f"grid test set: {nb_tasks} test tasks give fewer than 2 points per dimension over "
+            f"{n_free} varying dimensions; ask for at least {2**n_free} (--nb-test-episodes, "
+            "nb_tasks in Python) or use 'uniform'"
         )
     return k
 
