@@ -140,6 +140,10 @@ def test_evaluate_cli_on_run_dir(trained_run, tmp_path, capsys):
     argv = ["evaluate", str(trained_run), "--test-set", "grid", "--nb-test-episodes", "9"]
     assert main([*argv, "--out", str(out)]) == 0
     assert len(read_csv(out)["return"]) == 9
+    # on another env the run's test tasks (another task space) give way to that env's default
+    assert main(["evaluate", str(trained_run), "--env", "hexagon-tracks", "--out", str(out)]) == 0
+    assert "on test set default" in capsys.readouterr().out
+    assert "poly_shape[0]" in read_csv(out)
 
 
 def test_evaluate_reproduces_the_runs_last_evaluation(trained_run, tmp_path, capsys):

@@ -143,12 +143,14 @@ def _run_target(path: Path, model: Path | None, env: str | None, body: str | Non
     run.read_section("resolved")  # as resume: a config.yaml cut short is refused
     model = model or run.best_model()
     policy = is_policy_file(model)
+    # another env than the run's: its own default tasks, not the run's (another task space)
+    own_env = env is None or _same_env(env, config.env)
     return Target(
         model,
         env or config.env,
         body or config.body,
-        dict(config.env_kwargs),
-        run.test_tasks(),
+        dict(config.env_kwargs) if own_env else {},
+        run.test_tasks() if own_env else None,
         config.eval_seed,
         (config.eval_envs or MAX_ENVS) if policy else config.effective_eval_envs,
         not config.eval_stochastic,
@@ -156,6 +158,16 @@ def _run_target(path: Path, model: Path | None, env: str | None, body: str | Non
         policy,
         _many_worlds_device(config) if policy and uses_many_worlds(config) else None,
     )
+
+
+def _same_env(a: str, b: str) -> bool:
+    """Whether two env names (short names or Gymnasium ids) are one environment."""
+    from acl3d.envs import env_id
+
+    try:
+        return env_id(a) == env_id(b)
+    except ValueError:  # a Gymnasium id outside acl3d
+        return a == b
 
 
 def check_normalization(model: Path, raw_observations: bool) -> None:
