@@ -134,12 +134,15 @@ def test_evaluate_cli_on_run_dir(trained_run, tmp_path, capsys):
     rows = read_csv(out)
     assert {"stump_height", "obstacle_spacing"} <= set(rows)
     assert len(rows["return"]) == 4 and all(length <= 60 for length in rows["length"])
-    # a size for the run's own test set is refused, not ignored; with a generated set it holds
-    assert main(["evaluate", str(trained_run), "--nb-test-episodes", "9"]) == 2
-    assert "--nb-test-episodes=9; valid: with --test-set only" in capsys.readouterr().err
-    argv = ["evaluate", str(trained_run), "--test-set", "grid", "--nb-test-episodes", "9"]
-    assert main([*argv, "--out", str(out)]) == 0
+    # a size draws the run's kind of test set (the default grid) at that size, not ignored
+    assert main(["evaluate", str(trained_run), "--nb-test-episodes", "9", "--out", str(out)]) == 0
+    assert "on test set default (9 tasks x 1)" in capsys.readouterr().out
     assert len(read_csv(out)["return"]) == 9
+    tasks = tmp_path / "tasks.json"
+    tasks.write_text(json.dumps([{"stump_height": 0.5, "obstacle_spacing": 3.0}]))
+    argv = ["evaluate", str(trained_run), "--test-set", str(tasks), "--nb-test-episodes", "9"]
+    assert main(argv) == 2  # a file holds its own tasks: a size for it is refused
+    assert "--nb-test-episodes=9; valid: with a test set drawn at a size" in capsys.readouterr().err
     # on another env the run's test tasks (another task space) give way to that env's default
     assert main(["evaluate", str(trained_run), "--env", "hexagon-tracks", "--out", str(out)]) == 0
     assert "on test set default" in capsys.readouterr().out

@@ -41,7 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         p,
         "the run's test set, else the environment's default set",
         TrainConfig().nb_test_episodes,
-        unset_is_none=True,  # given with a run's own test set: refused, not ignored
+        unset_is_none=True,
+        nb_default_text=f"{TrainConfig().nb_test_episodes}; given for a run, its kind of test set "
+        "is drawn at this size instead of its own tasks",
     )
     p.add_argument("--episodes", type=int, default=1, help="episodes per test task (default 1)")
     p.add_argument("--env", help="track (default: the run's; required for a bare model zip)")
@@ -93,6 +95,7 @@ class Target:
     run_dir: Path | None = None
     policy_file: bool = False  # a torch-native student's (else an SB3 zip)
     many_worlds_device: str | None = None  # where a policy file's run evaluated on many worlds
+    test_set: str | None = None  # the run's --test-set (None: the default rule)
 
 
 def enclosing_run(model: Path) -> Path | None:
@@ -157,6 +160,7 @@ def _run_target(path: Path, model: Path | None, env: str | None, body: str | Non
         run.path,
         policy,
         _many_worlds_device(config) if policy and uses_many_worlds(config) else None,
+        config.test_set if own_env else None,
     )
 
 
@@ -320,23 +324,21 @@ def run(args) -> int:
         space, profile = inner.task_space, inner.curriculum_profile
     finally:
         probe.close()
-    if args.test_set is None and t.tasks is not None:
-        if args.nb_test_episodes is not None:
-            raise check.fail(
-                "--nb-test-episodes",
-                args.nb_test_episodes,
-                f"with --test-set only: the run's own test set ({len(t.tasks)} tasks) is played "
-                "as it is (add --test-set grid or uniform to generate one of this size)",
-            )
+    if args.test_set is None and args.nb_test_episodes is None and t.tasks is not None:
         tasks, test_set = t.tasks, "the run's test set"
-    else:
+    else:  # the one asked for, else the run's kind of test set drawn at the size asked for
+        chosen = t.test_set if args.test_set is None else args.test_set
         nb = args.nb_test_episodes
+        if nb is not None and not test_sets.generated(chosen):
+            raise check.fail(
+                "--nb-test-episodes", nb, f"with a test set drawn at a size: {chosen} is a file"
+            )
         nb = TrainConfig().nb_test_episodes if nb is None else nb
         try:
-            tasks = test_sets.resolve(args.test_set, space, nb, profile)
+            tasks = test_sets.resolve(chosen, space, nb, profile)
         except ValueError as exc:
             raise ValueError(option_message(str(exc))) from None
-        test_set = f"test set {args.test_set or 'default'}"
+        test_set = f"test set {chosen or 'default'}"
     check_episodes(args.episodes, len(tasks))
     seed = t.seed if args.seed is None else args.seed
     n_envs = t.n_envs if args.n_envs is None else args.n_envs

@@ -188,6 +188,12 @@ def save(path, tasks, task_space) -> None:
         raise ValueError(f"test set file {str(path)!r}: expected a .json or .csv suffix")
 
 
+def generated(test_set) -> bool:
+    """Whether `test_set` (as `resolve` takes it) is drawn at a size: None (the default rule),
+    "grid", "uniform" or a named set; a file or an array holds its own tasks."""
+    return test_set is None or (isinstance(test_set, str) and not Path(test_set).suffix)
+
+
 def resolve(
     test_set, task_space, nb_tasks: int = 100, profile: CurriculumProfile | None = None
 ) -> np.ndarray:
