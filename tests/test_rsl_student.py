@@ -224,6 +224,19 @@ def test_a_teacher_learning_from_steps_gets_each_episode_after_its_steps(tmp_pat
     assert _episodes_until(whole, None) == _episodes_until(parts, None)
 
 
+def test_its_evaluations_are_announced_before_it_trains(tmp_path, capsys):
+    tasks = tmp_path / "tasks.json"
+    tasks.write_text(json.dumps([{"stump_height": h, "obstacle_spacing": 3.0} for h in (0, 1)]))
+    argv = ["train", "--student", "rsl-ppo", "--teacher", "random", "--n-envs", "2",
+            "--student-param", "num_steps_per_env=16", "--student-param", "hidden_dims=[8]",
+            "--env-kwarg", "max_episode_steps=20", "--test-set", str(tasks), "--steps", "32",
+            "--no-progress", "--quiet", "--out", str(tmp_path / "run")]  # fmt: skip
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert f"test_set={tasks}: a file of 2 test tasks (nb_test_episodes=25" in err
+    assert "one evaluation, at the end of training" in err
+
+
 def test_presets_and_checks():
     assert students.is_on_policy("rsl-ppo")
     fast = students.hyperparameters("rsl-ppo", "fast", 16)

@@ -22,6 +22,7 @@ from acl3d import provenance
 from acl3d import validation as check
 from acl3d.atomic_files import is_disk_full
 from acl3d.run_format.tables import read_csv, truncate_csv
+from acl3d.teachers import test_sets
 from acl3d.training import students
 from acl3d.training.callbacks import run_callbacks
 from acl3d.training.config import RESUME_MAY_CHANGE, TrainConfig, validate
@@ -100,9 +101,11 @@ def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
     start = 0 if resume_from is None else int(read_state(resume_from / "progress")["num_timesteps"])
     target, rounding = _target_steps(config, start, finished=run.status() == "finished")
 
-    def checked() -> None:  # the run's checks passed: say what only matters for a run that starts
+    def checked(test_tasks) -> None:  # the run's checks passed: what matters once it starts
         if rounding is not None:
             _note(rounding)
+        if resume_from is None:  # warnings: printed with --quiet too
+            _announce_evaluations(config, target, test_tasks)
 
     if students.is_torch_native(config.student):  # its own loop on tensor worlds
         from acl3d.training.torch_student.launch import train_run
@@ -115,7 +118,7 @@ def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
             run.unlock()
         return TrainResult(run.path, steps, _last_eval(run))
     session = Session(config, run, resume_from)  # builds the controller: fails before any worker
-    checked()
+    checked(session.controller.test_tasks())
     sections = {
         "student_hyperparameters": session.params,
         "resolved": {
@@ -127,8 +130,6 @@ def _start(config, run, resume_from, user_callbacks, overwrite) -> TrainResult:
             "nb_test_episodes": session.controller.nb_test_episodes,
         },
     }
-    if resume_from is None:  # warnings: printed with --quiet too
-        _announce_evaluations(config, target, session.controller.test_tasks())
     if session.controller.marks_exploratory and config.verbose:
         how = (
             "excluded from" if session.exclude_exploratory else "kept in (exclude_exploratory off)"
@@ -210,6 +211,11 @@ def _announce_evaluations(config: TrainConfig, target: int, test_tasks) -> None:
     test set of another size than asked (a grid keeps floor(n^(1/d)) points per dimension), or a
     run too short for more than its final evaluation."""
     n = len(test_tasks)
+    if not test_sets.generated(config.test_set) and n != config.nb_test_episodes:
+        _note(
+            f"test_set={config.test_set}: a file of {n} test tasks (nb_test_episodes="
+            f"{config.nb_test_episodes} sizes a test set drawn at a size)"
+        )
     if config.test_set is None and n != config.nb_test_episodes:
         varying = int(sum(len(set(column)) > 1 for column in zip(*test_tasks)))
         points = round(n ** (1 / max(varying, 1)))

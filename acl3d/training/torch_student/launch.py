@@ -19,10 +19,10 @@ def train_run(
 ) -> int:
     """Train `config`'s torch-native student to `target` steps in `run` (new or resumed); the
     run's status says finished, interrupted (Ctrl-C, SIGTERM) or crashed, as for SB3 students.
-    `checked()`, if given, is called once the run's checks have passed."""
+    `checked(test_tasks)`, if given, is called once the run's checks have passed."""
     torch_run = TorchRun(config, run, resume_from)  # every check before anything is written
     if checked is not None:
-        checked()
+        checked(torch_run.controller.test_tasks())
     sections = {
         "student_hyperparameters": torch_run.params,
         "resolved": {
