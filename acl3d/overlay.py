@@ -72,7 +72,7 @@ def wrap_line(text: str, size: int, max_width: int) -> list[str]:
     for word in text.split(" "):
         if lines and _advance(f"{lines[-1]} {word}", size) <= max_width:
             lines[-1] = f"{lines[-1]} {word}"
-        else:
+        elif word:  # the empty words of a run of spaces start no line of their own
             lines.append(word)
     return lines
 

@@ -11,7 +11,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from acl3d.cli import main
-from acl3d.overlay import draw_label
+from acl3d.overlay import draw_label, wrap_line
 from acl3d.playback import EpisodePlayer, record_grid, record_rollouts
 from acl3d.training import checkpoint
 from acl3d.training.evaluation import evaluate_saved_model
@@ -62,6 +62,9 @@ def test_the_label_changes_only_its_corner():
     assert changed[:, 0].max() < 60 and changed[:, 1].max() < 130  # top-left only
     box = labelled[: changed[:, 0].max(), : changed[:, 1].max()]
     assert box.min() < 120 and box.max() > 240  # dimmed background, white text
+    tiny = np.zeros((10, 10, 3), dtype=np.uint8)  # narrower than any word: each on its own line
+    draw_label(tiny, ["step 12  return -3.0", "  "])
+    assert wrap_line("step 12  return", 10, 1) == ["step", "12", "return"]
 
 
 def test_playback_on_a_rendered_frame_labels_the_corner_only():
