@@ -235,6 +235,11 @@ class TaskSpace:
             out[p.name] = float(v[0]) if p.dims == 1 else v.copy()
         return out
 
+    def columns(self, tasks: np.ndarray) -> dict[str, np.ndarray]:
+        """(k, dim) task vectors -> {name: (k, dims) array}: each parameter's values over the
+        tasks (what a generator's buildable check takes, for a batch in one call)."""
+        return {p.name: tasks[:, self.slice(p.name)] for p in self.parameters}
+
     def to_vector(self, task: Mapping, fill_defaults: bool = True) -> np.ndarray:
         """{name: value} -> flat float64 vector; missing names take their default (or fail).
 

@@ -388,6 +388,20 @@ def test_make_vec_with_a_device_gives_the_warp_worlds_behind_gymnasiums_api():
         for key in ("final_obs", "success", "episode_return"):  # Gymnasium's info layout
             assert torch.equal(infos["_" + key], truncated)
     assert bool(truncated.all()) and teacher.nb_episodes == 2  # the teacher saw both episodes
+
+    class Tasks:  # a curriculum of one fixed reply
+        def __init__(self, reply):
+            self.reply = reply
+
+        def sync(self, finished, ids):
+            return np.tile(self.reply, (len(ids), 1))
+
+    for reply, match in (([np.nan, 1.0], "the curriculum's tasks"), ([99.0, 1.0], "stump_height")):
+        with pytest.raises(ValueError, match=match):  # refused before any world resets
+            gym.make_vec(
+                "acl3d/StumpTracks-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                device="cpu", curriculum_sync=Tasks(reply),
+            ).reset(seed=0)  # fmt: skip
     with pytest.raises(ValueError, match="movable_creepers=True on the many-world"):
         gym.make_vec(
             "acl3d/Parkour-v0", num_envs=2, vectorization_mode="vector_entry_point",

@@ -188,10 +188,17 @@ class ManyWorlds:
         return self.obs
 
     def _next_tasks(self, finished, ids: np.ndarray) -> np.ndarray:
+        """The next task of each world `ids`: the curriculum's, checked as a batch (finite,
+        one row a world, buildable) before any world is reset with them."""
         if self.curriculum is None:
             return self.tasks[ids]
-        tasks = np.asarray(self.curriculum.sync(finished.numpy(), ids), dtype=np.float64)
-        return tasks.reshape(len(ids), -1)
+        tasks = validation.real_array(
+            "the curriculum's tasks",
+            self.curriculum.sync(finished.numpy(), ids),
+            shape=(len(ids), self.task_space.dim),
+        )
+        self.template.composition.check_buildable(self.task_space.columns(tasks))
+        return tasks
 
     def _reset_worlds(self, ids: np.ndarray, tasks: np.ndarray, obs: torch.Tensor):
         """New episodes on worlds `ids` (host indices) with `tasks`; returns a copy of obs with
