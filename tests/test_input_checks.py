@@ -180,6 +180,13 @@ def test_analyze_of_the_shipped_results_writes_under_the_current_directory(tmp_p
 
 
 # ---------------------------------------------------------------------- also
+def test_a_time_limit_below_one_step_is_refused_in_acl3ds_words():
+    from acl3d.envs import make
+
+    with pytest.raises(ValueError, match=r"max_episode_steps=0; valid: an integer in \[1,"):
+        make("stump-tracks", max_episode_steps=0)
+
+
 def test_make_vec_sync_with_a_teacher_points_to_the_vector_entry_point():
     with pytest.raises(TypeError, match='vectorization_mode="vector_entry_point", teacher='):
         gym.make_vec("acl3d/StumpTracks-v0", 2, vectorization_mode="sync", teacher=object())

@@ -129,6 +129,8 @@ def test_evaluations_played_together_survive_a_kill_after_a_checkpoint(reference
         validate(TrainConfig(student="rsl-ppo", eval_together=65), on_this_machine=False)
     with pytest.raises(ValueError, match="eval_together=2; valid: None or 1 with an SB3"):
         validate(TrainConfig(student="ppo", eval_together=2), on_this_machine=False)
+    with pytest.raises(ValueError, match="vec_env='warp'; valid: auto, batched, dummy or sub"):
+        validate(TrainConfig(student="ppo", vec_env="warp"), on_this_machine=False)
 
 
 def test_evaluate_reproduces_the_runs_own_last_evaluation(reference, tmp_path, capsys):

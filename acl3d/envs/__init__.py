@@ -8,6 +8,8 @@ from typing import NamedTuple
 
 import gymnasium as gym
 
+from acl3d import validation
+
 MAX_EPISODE_STEPS = 2000  # the students' cut in TeachMyAgent (40 s at 50 Hz), a truncation
 # an episode above this return masters its task (TeachMyAgent's): every env's
 # `CurriculumProfile.success_return` and Gymnasium's `reward_threshold`
@@ -114,5 +116,8 @@ def env_id(name: str) -> str:
 
 
 def make(name: str, **kwargs) -> gym.Env:
-    """`gymnasium.make` for acl3d environments, accepting the CLI's short names."""
+    """`gymnasium.make` for acl3d environments, accepting the CLI's short names (a time limit
+    is checked here, in acl3d's words, before Gymnasium's wrapper asserts on it)."""
+    if "max_episode_steps" in kwargs:
+        validation.integer("max_episode_steps", kwargs["max_episode_steps"], 1, 10**9)
     return gym.make(env_id(name), **kwargs)

@@ -297,6 +297,11 @@ def validate(config: TrainConfig, *, on_this_machine: bool = True) -> None:
             "eval_together", config.eval_together, "None or 1 with an SB3 student (its "
             "evaluations run when they fall due); torch-native students: [1, 64]",
         )  # fmt: skip
+    if config.vec_env == "warp" and not students.is_torch_native(config.student):
+        raise check.fail(
+            "vec_env", config.vec_env, "auto, batched, dummy or subproc with an SB3 student "
+            "(warp, the many-world simulation, takes torch-native students: rsl-ppo)",
+        )  # fmt: skip
     excludes_exploratory(config)
 
 
