@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
 import yaml
 from cli_support import one_line_error
@@ -180,6 +181,14 @@ def test_analyze_of_the_shipped_results_writes_under_the_current_directory(tmp_p
 
 
 # ---------------------------------------------------------------------- also
+def test_an_env_whose_first_reset_was_refused_resets_and_steps():
+    env = gym.make("acl3d/StumpTracks-v0")
+    with pytest.raises(ValueError, match="unknown reset option"):
+        env.reset(options={"foo": 1})
+    env.reset(seed=0)
+    assert np.isfinite(env.step(np.zeros(4))[1])
+
+
 def test_a_time_limit_below_one_step_is_refused_in_acl3ds_words():
     from acl3d.envs import make
 
