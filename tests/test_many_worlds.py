@@ -244,8 +244,10 @@ def test_a_restored_state_continues_as_the_original(worlds):
     worlds.step(_actions(worlds, 11))
     saved = worlds.get_state()
     fresh = ManyWorldTracks(2, device="cpu", body="classic_bipedal")
-    with pytest.raises(gym.error.ResetNeeded, match="reset"):  # no episode to step yet
+    with pytest.raises(gym.error.ResetNeeded, match="reset"):  # no episode to step or save yet
         fresh.step(_actions(fresh, 20))
+    with pytest.raises(gym.error.ResetNeeded, match="reset"):
+        fresh.get_state()
     runs = []
     for env in (worlds, worlds, fresh):  # restored twice, and into new worlds (no reset needed)
         env.set_state(saved)

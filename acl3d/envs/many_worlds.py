@@ -290,7 +290,10 @@ class ManyWorlds:
 
     def get_state(self) -> dict:
         """Every world's running episode as numpy arrays (physics state, terrain, rules, episode
-        sums, tasks, the terrain generators' states), for a checkpoint."""
+        sums, tasks, the terrain generators' states), for a checkpoint; before `reset`,
+        gymnasium's ResetNeeded (no episode to save)."""
+        if not self._running:
+            raise gym.error.ResetNeeded("get_state() needs running episodes: call reset() first")
         sim = self.sim
         state = {f"sim/{name}": _host(sim.field(name)) for name in self._SIM_FIELDS}
         state.update(
