@@ -271,7 +271,8 @@ def hexagon_tracks(num_envs: int = 1, device=None, **kwargs) -> VectorEnv:
 
 
 def parkour(num_envs: int = 1, device=None, **kwargs) -> VectorEnv:
-    """Vector entry point of acl3d/Parkour-v0 (`device=` is refused: Parkour is CPU-only)."""
+    """Vector entry point of acl3d/Parkour-v0 (with `device=`, movable creepers are refused:
+    they stay on the CPU batched env)."""
     return vector_env("acl3d/Parkour-v0", num_envs, device, kwargs)
 
 
