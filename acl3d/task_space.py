@@ -166,14 +166,6 @@ class TaskSpace:
             params.append(p)
         return TaskSpace(tuple(params))
 
-    def subset(self, names: Sequence[str]) -> TaskSpace:
-        """The space restricted to `names` (in that order)."""
-        by_name = {p.name: p for p in self.parameters}
-        unknown = [n for n in names if n not in by_name]
-        if unknown:
-            raise ValueError(f"unknown task parameter(s) {unknown}; valid: {list(self.names)}")
-        return TaskSpace(tuple(by_name[n] for n in names))
-
     # ------------------------------------------------------------------ description
     @property
     def names(self) -> tuple[str, ...]:
