@@ -11,7 +11,9 @@ interleaved rounds, against today's model (blocks stamped into a 0.1 x 0.2 m gri
 * the same field on coarser grids (0.2 x 0.2 m, the reference's; 0.5 x 0.5 m): the blocks
   become wedges;
 * the ground alone on a 0.25 or 0.5 m grid, its blocks as box geoms (sunk 1 m into the ground,
-  the same for every world: where they stand does not change what a contact costs).
+  the same for every world: where they stand does not change what a contact costs);
+* flat ground without blocks on today's grid, as the reference's terrain was (whether the
+  rough ground's content, rather than its grid, is what costs).
 
 Every world plays the bench task of `bench_gpu.py` (roughness 0.1 m, full-width 0.3 m blocks
 every 4.5 m) on one of 256 draws of the roughness, with 192 constraint rows and 24 contact
@@ -49,23 +51,28 @@ TASK = {"roughness": 0.1, "block_height": 0.3}  # bench_gpu.py's, without its ~0
 SPACING = 4.0  # metres between blocks: the task space's default block_spacing
 SINK = 1.0  # metres a box block reaches below the ground
 DRAWS = 256  # distinct draws of the roughness, repeated over the worlds (0.3 ms each on a CPU)
-VARIANTS = (  # (cell, row_cell, blocks as boxes)
-    (0.1, 0.2, False),
-    (0.2, 0.2, False),
-    (0.5, 0.5, False),
-    (0.25, 0.25, True),
-    (0.5, 0.5, True),
+FIELD, BOXES, FLAT = "blocks in the heightfield", "blocks as boxes", "flat, no blocks"
+VARIANTS = (  # (cell, row_cell, what the terrain holds)
+    (0.1, 0.2, FIELD),
+    (0.2, 0.2, FIELD),
+    (0.5, 0.5, FIELD),
+    (0.25, 0.25, BOXES),
+    (0.5, 0.5, BOXES),
+    (0.1, 0.2, FLAT),
 )
 
 
-def build(cell: float, row_cell: float, boxes: bool, worlds: int, device: str):
-    """(simulation, label): big_quadru on its start pad in every world, the bench task's field."""
+def build(cell: float, row_cell: float, holds: str, worlds: int, device: str):
+    """(simulation, label): big_quadru on its start pad in every world, the bench task's field
+    (`holds`: its blocks in the heightfield or as boxes, or flat ground)."""
     body = make_body("big_quadru")
     generator = Terrain3DGenerator(start_pad_for(body.length), cell, row_cell)
     arena = Terrain3DArena(body, generator)
     model, task = arena.model, TASK
-    if boxes:
+    if holds == BOXES:
         model, task = _with_box_blocks(arena), {**TASK, "block_height": 0.0}
+    elif holds == FLAT:
+        task = {"roughness": 0.0, "block_height": 0.0}
     model.opt.timestep = CONTROL_DT / body.frame_skip
     lo, hi = HEIGHT_RANGE
     draws = [generator.heights(task, np.random.default_rng(i)) for i in range(min(worlds, DRAWS))]
@@ -80,7 +87,7 @@ def build(cell: float, row_cell: float, boxes: bool, worlds: int, device: str):
     sim.reset_worlds(torch.arange(worlds, device=sim.device), qpos, qvel)
     g = generator.grid
     label = f"{cell} x {row_cell} m grid ({g.ncol} x {g.nrow}), "
-    return sim, label + ("blocks as boxes" if boxes else "blocks in the heightfield")
+    return sim, label + holds
 
 
 def _with_box_blocks(arena: Terrain3DArena) -> mujoco.MjModel:
