@@ -116,7 +116,7 @@ def main() -> None:
     rates: dict[str, list[float]] = defaultdict(list)
     shares: dict[str, float] = {}
     print(f"3D Terrain, big_quadru, {a.worlds} worlds on {a.device}, {a.steps} timed steps")
-    for _ in range(a.rounds):
+    for round_ in range(1, a.rounds + 1):
         for variant in VARIANTS:
             sim, label = build(*variant, a.worlds, a.device)
             rates[label].append(raw_rate(sim, a.steps, a.warmup))
@@ -125,6 +125,8 @@ def main() -> None:
                 hfield = sum(s for name, s in times.items() if HFIELD_KERNEL in name)
                 shares[label] = hfield / sum(times.values())
             del sim
+            # each measurement as it comes: a run cut short by a time limit keeps those done
+            print(f"round {round_}: {rates[label][-1]:,.0f} env steps/s  {label}", flush=True)
     today = np.mean(next(iter(rates.values())))
     print(f"{'raw physics (env steps/s)':>28} {'against today':>14} {'heightfield':>12}  terrain")
     for label, values in rates.items():
