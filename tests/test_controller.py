@@ -1,8 +1,8 @@
-"""TeacherController, DimensionsShuffler, curriculum profiles, expert knowledge and test sets."""
+"""TeacherController, DimensionsShuffler and curriculum profiles (expert knowledge:
+test_expert_knowledge.py; test sets: test_test_sets.py)."""
 
 from __future__ import annotations
 
-import inspect
 import json
 import pickle
 
@@ -15,13 +15,9 @@ from acl3d import envs
 from acl3d.curriculum_profile import CurriculumProfile
 from acl3d.envs.profiles import HEXAGON_TRACKS, PARKOUR, STUMP_TRACKS
 from acl3d.task_space import TaskSpace
-from acl3d.teachers import TEACHERS, load_state, teacher_class
-from acl3d.teachers import test_sets as ts
+from acl3d.teachers import TEACHERS, load_state
 from acl3d.teachers.controller import TeacherController
 from acl3d.teachers.dimensions_shuffler import DimensionsShuffler
-from acl3d.teachers.expert_knowledge import expert_knowledge
-from acl3d.terrain import parkour_test_sets
-from acl3d.terrain.parkour import parkour_task_space
 
 torch.set_num_threads(1)
 
@@ -325,70 +321,7 @@ def test_shuffled_controller_round_trips_tasks_to_the_teacher():
     assert len(c.teacher._pending) <= 1  # every played GAN goal was matched back
 
 
-# ---------------------------------------------------------------------- expert knowledge
-def test_expert_knowledge_table():
-    space = TaskSpace.coerce({"stump_height": [-3.0, 3.0], "obstacle_spacing": [0.0, 6.0]})
-    high = expert_knowledge(STUMP_TRACKS, space, "high")
-    dist = STUMP_TRACKS.initial_distribution(space)
-    np.testing.assert_allclose(dist["mean"], [0.0, 6.0])
-    np.testing.assert_allclose(dist["variance"], np.diag([0.6**2, 0.6**2]))
-    for name in ("alp-gmm", "covar-gmm", "adr", "self-paced", "goal-gan"):
-        assert high[name]["initial_dist"] is not None, name
-    for name in ("random", "riac", "setter-solver", "oracle", "lessons"):
-        assert "initial_dist" not in high[name]
-    assert expert_knowledge(STUMP_TRACKS, space, "no") == expert_knowledge(
-        STUMP_TRACKS, space, "low"
-    )
-    low = expert_knowledge(STUMP_TRACKS, space, "low")
-    assert all("initial_dist" not in kw for kw in low.values())
-    # the easy side is the environment's fact, given at every level (where ADR starts)
-    easy = ["obstacle_spacing"]
-    assert low["adr"] == {"min_reward_thr": 0.0, "max_reward_thr": 180.0, "easy_at_high": easy}
-    assert low["oracle"]["easy_at_high"] == easy and low["goal-gan"]["easy_at_high"] == easy
-    for profile in (PARKOUR, None):  # no prior for Parkour, nor for an env without a profile
-        assert expert_knowledge(profile, space, "high") == expert_knowledge(profile, space, "low")
-        assert all(
-            "initial_dist" not in kw for kw in expert_knowledge(profile, space, "high").values()
-        )
-    np.testing.assert_allclose(
-        STUMP_TRACKS.initial_distribution({"stump_height": [1, 3], "obstacle_spacing": [0, 6]})[
-            "mean"
-        ],
-        [1, 6],
-    )
-    hexa = HEXAGON_TRACKS.initial_distribution({"poly_shape": [0.0, 4.0, 12]})
-    np.testing.assert_allclose(hexa["mean"], np.zeros(12))
-    np.testing.assert_allclose(np.diag(hexa["variance"]), np.full(12, 0.01))
-    with pytest.raises(ValueError, match="expert_knowledge level"):
-        expert_knowledge(PARKOUR, space, "original")
-
-
-def test_expert_knowledge_kwargs_are_accepted_by_every_teacher():
-    space = TaskSpace.coerce(STUMPS)
-    for level in ("no", "low", "high"):
-        knowledge = expert_knowledge(STUMP_TRACKS, space, level)
-        assert set(TEACHERS) <= set(knowledge)  # every built-in (and any registered by then)
-        for name, kwargs in knowledge.items():
-            params = inspect.signature(teacher_class(name).__init__).parameters
-            assert set(kwargs) <= set(params), (name, set(kwargs) - set(params))
-
-
-def test_high_knowledge_reaches_teachers_in_teacher_space():
-    c = TeacherController(
-        "self-paced",
-        STUMPS,
-        5,
-        profile=STUMP_TRACKS,
-        expert_knowledge="high",
-        shuffle_dimensions=True,
-    )
-    mean, cov = c.teacher.mean_covariance()
-    np.testing.assert_allclose(mean, c.shuffler.inverse(np.array([0.0, 6.0])))
-    np.testing.assert_allclose(np.diag(cov), [0.3**2, 0.6**2])
-    c = TeacherController("adr", STUMPS, 5, profile=STUMP_TRACKS, expert_knowledge="high")
-    np.testing.assert_allclose(c.sample_task(), [0.0, 6.0])  # ADR starts at the easy corner
-
-
+# ---------------------------------------------------------------------- every teacher
 def test_every_registered_teacher_runs_under_the_controller():
     for name in TEACHERS:
         params = {
@@ -410,108 +343,6 @@ def test_every_registered_teacher_runs_under_the_controller():
         assert tasks.dtype == np.float32 and np.all(tasks >= 0) and np.all(tasks <= [3, 6]), name
     with pytest.raises(ValueError, match="unknown teacher"):
         TeacherController("curious", STUMPS, 0)
-
-
-# ---------------------------------------------------------------------- test sets
-def test_default_test_set_is_the_stump_grid():
-    space = {"stump_height": [0.0, 9.0], "obstacle_spacing": [0.0, 6.0]}
-    c = TeacherController("random", space, 0, profile=STUMP_TRACKS)
-    tasks = c.test_tasks()
-    assert tasks.shape == (100, 2) and tasks.dtype == np.float32 and c.nb_test_episodes == 100
-    np.testing.assert_allclose(tasks[:10, 0], np.linspace(0, 3, 10), rtol=1e-6)  # first dim fastest
-    np.testing.assert_allclose(tasks[::10, 1], np.linspace(0, 6, 10), rtol=1e-6)
-    np.testing.assert_allclose(tasks[:10, 1], 0.0)
-    # the grid is the stump profile's: one stump dimension, or no profile, gives uniform tasks
-    one_dim = TeacherController("random", {"stump_height": [0.0, 9.0]}, 0, profile=STUMP_TRACKS)
-    np.testing.assert_allclose(one_dim.test_tasks(), ts.uniform({"stump_height": [0, 9]}, 100))
-    np.testing.assert_allclose(
-        TeacherController("random", space, 0).test_tasks(), ts.uniform(space)
-    )
-
-
-def test_named_test_sets_come_from_the_profile():
-    space = parkour_task_space()
-    for name in ("climbing", "climbing_test_set_v1"):
-        c = TeacherController("random", space, 0, profile=PARKOUR, test_set=name)
-        np.testing.assert_array_equal(
-            c.test_tasks(), parkour_test_sets.build("climbing", space).astype(np.float32)
-        )
-    with pytest.raises(ValueError, match="named set of this environment \\(none\\)"):
-        TeacherController("random", STUMPS, 0, profile=STUMP_TRACKS, test_set="walking")
-
-
-def test_default_test_set_elsewhere_is_seeded_uniform():
-    a = TeacherController("random", MIXED, 0, nb_test_episodes=30).test_tasks()
-    b = TeacherController("random", MIXED, 9, nb_test_episodes=30).test_tasks()
-    np.testing.assert_array_equal(a, b)  # seed 31, not the run seed
-    np.testing.assert_allclose(
-        a,
-        np.random.default_rng(31).uniform(
-            TaskSpace.coerce(MIXED).low, TaskSpace.coerce(MIXED).high, (30, 4)
-        ),
-        rtol=1e-6,
-    )
-
-
-def test_grid_over_varying_dimensions():
-    tasks = ts.grid(MIXED, 125)
-    assert tasks.shape == (125, 4)
-    np.testing.assert_array_equal(tasks[:, 1], 0.5)
-    assert len(np.unique(tasks[:, 0])) == 5 and len(np.unique(tasks, axis=0)) == 125
-    with pytest.raises(ValueError, match="fewer than 2 points"):
-        ts.grid({"x": [0, 1, 12]}, 100)
-
-
-@pytest.mark.parametrize("suffix", [".json", ".csv"])
-def test_test_set_file_round_trip(tmp_path, suffix):
-    tasks = ts.uniform(MIXED, 7, seed=3)
-    path = tmp_path / f"set{suffix}"
-    ts.save(path, tasks, MIXED)
-    np.testing.assert_array_equal(ts.load(path, MIXED), tasks)
-    c = TeacherController("random", MIXED, 0, test_set=str(path))
-    assert c.nb_test_episodes == 7
-    np.testing.assert_allclose(c.test_tasks(), tasks.astype(np.float32))
-
-
-def test_test_set_files_match_columns_by_name(tmp_path):
-    (tmp_path / "a.json").write_text(
-        json.dumps(
-            {"names": ["obstacle_spacing", "stump_height"], "tasks": [[5.0, 1.0], [4.0, 9.0]]}
-        )
-    )
-    np.testing.assert_array_equal(
-        ts.load(tmp_path / "a.json", STUMPS), [[1.0, 5.0], [9.0, 4.0]]
-    )  # outside bounds is fine
-    (tmp_path / "b.json").write_text(json.dumps([{"stump_height": 1.0, "obstacle_spacing": 2.0}]))
-    np.testing.assert_array_equal(ts.load(tmp_path / "b.json", STUMPS), [[1.0, 2.0]])
-    (tmp_path / "c.csv").write_text("obstacle_spacing,stump_height\n1,2\n3,4\n")
-    np.testing.assert_array_equal(ts.load(tmp_path / "c.csv", STUMPS), [[2.0, 1.0], [4.0, 3.0]])
-
-
-def test_bad_test_sets_raise(tmp_path):
-    with pytest.raises(ValueError, match="expected shape"):
-        TeacherController("random", STUMPS, 0, test_set=np.zeros((5, 3)))
-    with pytest.raises(ValueError, match="non-finite"):
-        ts.validate([[1.0, np.nan]], STUMPS)
-    (tmp_path / "a.json").write_text(
-        json.dumps({"names": ["stump_height", "gap"], "tasks": [[1.0, 2.0]]})
-    )
-    with pytest.raises(ValueError, match="unknown \\['gap'\\]"):
-        ts.load(tmp_path / "a.json", STUMPS)
-    (tmp_path / "b.csv").write_text("stump_height,obstacle_spacing\n1,x\n")
-    with pytest.raises(ValueError, match="b.csv"):
-        ts.load(tmp_path / "b.csv", STUMPS)
-    with pytest.raises(ValueError, match="missing.json': no such file"):
-        ts.load(tmp_path / "missing.json", STUMPS)
-
-
-def test_test_episodes_are_recorded():
-    c = TeacherController("random", STUMPS, 0)
-    for task in c.test_tasks()[:3]:
-        c.record_test_episode(task, 240.0, 2000, True)
-    assert c.state_dict()["records"]["test_returns"].tolist() == [240.0] * 3
-    with pytest.raises(ValueError, match="env_task"):
-        c.record_test_episode([1.0], 0.0, 1)
 
 
 # ---------------------------------------------------------------------- dump and resume
