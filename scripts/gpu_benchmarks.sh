@@ -18,7 +18,9 @@
 #                                          # kernel: 3D Terrain's big quadruped and Stump
 #                                          # Tracks at 16,384 worlds (the heightfield's share)
 #   scripts/gpu_benchmarks.sh terrain OUT  # 3D Terrain's raw physics at 16,384 worlds on other
-#                                          # grids and with its blocks as box geoms
+#                                          # grids, with its blocks as box geoms, and
+#                                          # laid out as the env does (a draw a world,
+#                                          # MuJoCo Warp's reservations)
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
@@ -46,7 +48,7 @@ set -uo pipefail
 stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|terrain|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
-cores=$(nproc)
+cores=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)  # nproc alone counts OMP_NUM_THREADS
 command -v taskset >/dev/null || taskset() { shift 2; "$@"; }  # no pinning where it is missing
 
 train() {  # teacher seed steps worlds eval_every fit_lag [extra args...]
