@@ -13,10 +13,13 @@ interleaved rounds, against today's model (blocks stamped into a 0.1 x 0.2 m gri
 * the ground alone on a 0.25 or 0.5 m grid, its blocks as box geoms (sunk 1 m into the ground,
   the same for every world: where they stand does not change what a contact costs);
 * flat ground without blocks on today's grid, as the reference's terrain was (whether the
-  rough ground's content, rather than its grid, is what costs).
+  rough ground's content, rather than its grid, is what costs);
+* today's field as the env lays it out: a draw of its own in every world (the others repeat
+  256 draws), then also MuJoCo Warp's reservations (the others: 192 constraint rows and 24
+  contact slots a world), where this bench's raw physics and `bench_gpu.py`'s part.
 
 Every world plays the bench task of `bench_gpu.py` (roughness 0.1 m, full-width 0.3 m blocks
-every 4.5 m) on one of 256 draws of the roughness, with 192 constraint rows and 24 contact
+every 4.5 m), each with its own copy of the heights, with 192 constraint rows and 24 contact
 slots; the bodies start on their feet, random controls fold them onto the ground in the
 `--warmup` steps, then `--steps` are timed. Random controls do not carry the quadruped to the
 first block, so the blocks' own contacts are not measured: what is measured is the ground's grid
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 from collections import defaultdict
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -52,31 +56,51 @@ SPACING = 4.0  # metres between blocks: the task space's default block_spacing
 SINK = 1.0  # metres a box block reaches below the ground
 DRAWS = 256  # distinct draws of the roughness, repeated over the worlds (0.3 ms each on a CPU)
 FIELD, BOXES, FLAT = "blocks in the heightfield", "blocks as boxes", "flat, no blocks"
-VARIANTS = (  # (cell, row_cell, what the terrain holds)
-    (0.1, 0.2, FIELD),
-    (0.2, 0.2, FIELD),
-    (0.5, 0.5, FIELD),
-    (0.25, 0.25, BOXES),
-    (0.5, 0.5, BOXES),
-    (0.1, 0.2, FLAT),
+
+
+class Variant(NamedTuple):
+    cell: float  # metres between the heightfield's points along x
+    row_cell: float  # ... and across
+    holds: str  # FIELD, BOXES or FLAT
+    own_draws: bool = False  # each world its own draw of the roughness (else one of DRAWS)
+    estimates: bool = False  # MuJoCo Warp's reservations (else 192 rows and 24 slots a world)
+
+    def label(self, grid) -> str:
+        label = f"{self.cell} x {self.row_cell} m grid ({grid.ncol} x {grid.nrow}), {self.holds}"
+        if self.own_draws:
+            label += ", one draw a world"
+        return label + (", MuJoCo Warp's reservations" if self.estimates else "")
+
+
+VARIANTS = (
+    Variant(0.1, 0.2, FIELD),
+    Variant(0.2, 0.2, FIELD),
+    Variant(0.5, 0.5, FIELD),
+    Variant(0.25, 0.25, BOXES),
+    Variant(0.5, 0.5, BOXES),
+    Variant(0.1, 0.2, FLAT),
+    Variant(0.1, 0.2, FIELD, own_draws=True),
+    Variant(0.1, 0.2, FIELD, own_draws=True, estimates=True),
 )
 
 
-def build(cell: float, row_cell: float, holds: str, worlds: int, device: str):
+def build(v: Variant, worlds: int, device: str):
     """(simulation, label): big_quadru on its start pad in every world, the bench task's field
-    (`holds`: its blocks in the heightfield or as boxes, or flat ground)."""
+    as variant `v` lays it out."""
     body = make_body("big_quadru")
-    generator = Terrain3DGenerator(start_pad_for(body.length), cell, row_cell)
+    generator = Terrain3DGenerator(start_pad_for(body.length), v.cell, v.row_cell)
     arena = Terrain3DArena(body, generator)
     model, task = arena.model, TASK
-    if holds == BOXES:
+    if v.holds == BOXES:
         model, task = _with_box_blocks(arena), {**TASK, "block_height": 0.0}
-    elif holds == FLAT:
+    elif v.holds == FLAT:
         task = {"roughness": 0.0, "block_height": 0.0}
     model.opt.timestep = CONTROL_DT / body.frame_skip
     lo, hi = HEIGHT_RANGE
-    draws = [generator.heights(task, np.random.default_rng(i)) for i in range(min(worlds, DRAWS))]
-    sim = WarpSimulation(model, worlds, body.frame_skip, TERRAIN, device, 192, 24)
+    n = worlds if v.own_draws else min(worlds, DRAWS)
+    draws = [generator.heights(task, np.random.default_rng(i)) for i in range(n)]
+    reserved = (None, None) if v.estimates else (192, 24)
+    sim = WarpSimulation(model, worlds, body.frame_skip, TERRAIN, device, *reserved)
     rows = torch.as_tensor((np.stack(draws) - lo) / (hi - lo), device=sim.device, dtype=sim.dtype)
     world = torch.arange(worlds, device=sim.device)
     sim.terrain("terrain").copy_(rows[world % len(draws)])
@@ -85,9 +109,7 @@ def build(cell: float, row_cell: float, holds: str, worlds: int, device: str):
     qpos = torch.as_tensor(data.qpos, device=sim.device).expand(worlds, -1)
     qvel = torch.zeros((worlds, model.nv), device=sim.device)
     sim.reset_worlds(torch.arange(worlds, device=sim.device), qpos, qvel)
-    g = generator.grid
-    label = f"{cell} x {row_cell} m grid ({g.ncol} x {g.nrow}), "
-    return sim, label + holds
+    return sim, v.label(generator.grid)
 
 
 def _with_box_blocks(arena: Terrain3DArena) -> mujoco.MjModel:
@@ -118,7 +140,7 @@ def main() -> None:
     print(f"3D Terrain, big_quadru, {a.worlds} worlds on {a.device}, {a.steps} timed steps")
     for round_ in range(1, a.rounds + 1):
         for variant in VARIANTS:
-            sim, label = build(*variant, a.worlds, a.device)
+            sim, label = build(variant, a.worlds, a.device)
             rates[label].append(raw_rate(sim, a.steps, a.warmup))
             if label not in shares:
                 times = kernel_times(sim, 3)
