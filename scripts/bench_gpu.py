@@ -5,6 +5,7 @@
     python scripts/bench_gpu.py --first-step                           # a new process's start
 
     python scripts/bench_gpu.py --env terrain3d --body big_quadru      # another family
+    python scripts/bench_gpu.py --env terrain3d --env-kwarg grid_spacing=[0.2,0.2]
     python scripts/bench_gpu.py --env terrain3d --body big_quadru --constraint-rows 0 384 256
     python scripts/bench_gpu.py --env terrain3d --body big_quadru --contact-slots 0 24 16
 
@@ -34,6 +35,7 @@ import time
 
 import torch
 
+from acl3d.cli.option_values import key_values
 from acl3d.envs.many_worlds import ManyWorlds, many_worlds
 
 # a task with obstacles everywhere, per env
@@ -54,9 +56,9 @@ def _sync(device: torch.device) -> None:
 
 def make_env(
     n: int, device: str, name: str, body: str | None, rows: int | None = None,
-    slots: int | None = None,
+    slots: int | None = None, env_kwargs: dict | None = None,
 ) -> ManyWorlds:  # fmt: skip
-    kwargs = {} if body is None else {"body": body}
+    kwargs = dict(env_kwargs or {}, **({} if body is None else {"body": body}))
     env = many_worlds(name, n, device, constraint_rows=rows, contact_slots=slots, **kwargs)
     if name in TASKS:
         env.tasks[:] = env.task_space.to_vector(TASKS[name])
@@ -146,6 +148,10 @@ def main() -> None:
     )
     p.add_argument("--body", help="default: the env's")
     p.add_argument(
+        "--env-kwarg", action="append", metavar="K=V", default=[],
+        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
+    )  # fmt: skip
+    p.add_argument(
         "--constraint-rows", type=int, nargs="+", default=[0], metavar="ROWS",
         help="constraint rows reserved per world, each measured in turn (0: MuJoCo Warp's estimate)",
     )  # fmt: skip
@@ -157,8 +163,11 @@ def main() -> None:
     p.add_argument("--first-step", action="store_true", help="also time a new process's start")
     p.add_argument("--json", help="write the rows to this file too")
     a = p.parse_args()
+    env_kwargs = key_values(a.env_kwarg, "--env-kwarg")
     rows = []
-    print(f"{a.env}, {a.body or 'its default body'}, device {a.device}, {a.steps} timed steps")
+    options = "".join(f", {k}={v}" for k, v in env_kwargs.items())
+    print(f"{a.env}, {a.body or 'its default body'}{options}, device {a.device}, {a.steps} "
+          "timed steps")  # fmt: skip
     print(f"{'worlds':>8} {'rows':>5} {'slots':>5} {'raw physics/s':>14} {'env steps/s':>12} "
           f"{'ratio':>6} {'resets/step':>11} {'reset share':>11} {'overflows':>9} "
           f"{'pool full':>9}")  # fmt: skip
@@ -169,7 +178,7 @@ def main() -> None:
     for _ in range(a.rounds):
         for n, reserved, slots in cells:
             t0 = time.perf_counter()
-            env = make_env(n, a.device, a.env, a.body, reserved or None, slots or None)
+            env = make_env(n, a.device, a.env, a.body, reserved or None, slots or None, env_kwargs)
             build = time.perf_counter() - t0
             raw = raw_rate(env.sim, a.steps, a.warmup)
             env.reset(seed=0)
@@ -180,7 +189,8 @@ def main() -> None:
             row = dict(worlds=n, constraint_rows=env.sim.constraint_rows,
                        contact_slots=env.sim.contact_slots, pool_full=full, raw=raw, env=rate,
                        ratio=rate / raw, resets_per_step=resets, reset_share=share,
-                       overflows=overflows, build_s=build, device=a.device, env_name=a.env)  # fmt: skip
+                       overflows=overflows, build_s=build, device=a.device, env_name=a.env,
+                       env_kwargs=env_kwargs)  # fmt: skip
             rows.append(row)
             print(f"{n:>8} {row['constraint_rows']:>5} {row['contact_slots']:>5} {raw:>14,.0f} "
                   f"{rate:>12,.0f} {rate / raw:>6.2f} {resets:>11.1f} {share:>11.1%} "

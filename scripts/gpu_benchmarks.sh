@@ -21,6 +21,9 @@
 #                                          # grids, with its blocks as box geoms, and
 #                                          # laid out as the env does (a draw a world,
 #                                          # MuJoCo Warp's reservations)
+#   scripts/gpu_benchmarks.sh grids OUT    # 3D Terrain's big quadruped through the env at
+#                                          # 16,384 worlds on its grid and on coarser ones
+#                                          # (grid_spacing 0.2 x 0.2 and 0.5 x 0.5 m)
 #   scripts/gpu_benchmarks.sh speed OUT [STEPS] [WORLDS] [FIT_LAG]
 #                                          # one ALP-GMM run alone: steps/s end to end, its phases
 #                                          # (10 evaluations, played side by side at the end)
@@ -45,7 +48,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|terrain|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|terrain|grids|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)  # nproc alone counts OMP_NUM_THREADS
@@ -95,6 +98,13 @@ kernels)  # why 3D Terrain's raw physics is slower than Stump Tracks' (kernel sh
 terrain)  # what other terrain geometry would gain 3D Terrain's raw physics
   python3 scripts/bench_terrain3d_collision.py --device cuda --worlds 16384 --steps 50 \
     --rounds 1 2>&1 | grep -v '^Module' | tee "$out/terrain.txt"
+  ;;
+grids)  # what a coarser grid (Terrain3DEnv's grid_spacing) gains the env, rules and resets in
+  for spacing in 0.1,0.2 0.2,0.2 0.5,0.5; do
+    python3 scripts/bench_gpu.py --device cuda --env terrain3d --body big_quadru --sizes 16384 \
+      --steps 100 --env-kwarg "grid_spacing=[$spacing]" \
+      --json "$out/bench_gpu_terrain3d_grid_${spacing/,/x}.json" 2>&1 | grep -v '^Module'
+  done | tee "$out/grids.txt"
   ;;
 speed)
   steps=${3:-20000000} worlds=${4:-16384} lag=${5:-600}

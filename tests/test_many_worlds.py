@@ -85,8 +85,10 @@ def test_torch_rules_of_a_free_3d_body_equal_numpy_rules():
     assert not spider.template.rules.body.planar
 
 
-def test_3d_terrain_runs_as_many_worlds_with_the_height_scan():
-    field = many_worlds("terrain3d", 2, "cpu", body="big_quadru")
+@pytest.mark.parametrize("spacing, grid", [((0.1, 0.2), (31, 328)), ((0.5, 0.5), (13, 67))])
+def test_3d_terrain_runs_as_many_worlds_with_the_height_scan(spacing, grid):
+    field = many_worlds("terrain3d", 2, "cpu", body="big_quadru", grid_spacing=spacing)
+    assert tuple(field.sim.terrain("terrain").shape) == (2, *grid)  # each world's own field
     task = field.task_space.to_vector({"hill_slope": 0.2, "cross_slope": 0.15, "roughness": 0.1})
     field.tasks[:] = task
     field.reset(seed=2)

@@ -33,9 +33,17 @@ class Draws:
         return mean + std * next(self._normals)
 
 
-@pytest.mark.parametrize("parameters", [None, ("block_height", "hill_slope", "roughness")])
-def test_tensor_fields_equal_the_cpu_generator_given_the_same_draws(parameters):
-    env = Terrain3DEnv(task_parameters=parameters)
+@pytest.mark.parametrize(
+    "parameters, spacing",
+    [
+        (None, (0.1, 0.2)),
+        (("block_height", "hill_slope", "roughness"), (0.1, 0.2)),
+        (None, (0.25, 0.5)),  # a coarser grid (the env's `grid_spacing`)
+    ],
+)
+def test_tensor_fields_equal_the_cpu_generator_given_the_same_draws(parameters, spacing):
+    env = Terrain3DEnv(task_parameters=parameters, grid_spacing=spacing)
+    assert (env.arena.grid.cell, env.arena.grid.row_cell) == spacing
     space, generator = env.task_space, env.arena.generator
     fields = TensorTerrain3D(generator, tuple(space.names), "cpu")
     rng = np.random.default_rng(0)

@@ -108,12 +108,21 @@ def test_the_hardest_buildable_task_fits_the_heightfield_range():
     assert HEIGHT_RANGE[0] < h.min() and h.max() < HEIGHT_RANGE[1]
 
 
-def test_the_compiled_heightfield_is_what_mujoco_collides_with():
-    env = gym.make(ENV_ID).unwrapped
+@pytest.mark.parametrize("spacing", [(0.1, 0.2), (0.25, 0.5)])
+def test_the_compiled_heightfield_is_what_mujoco_collides_with(spacing):
+    env = gym.make(ENV_ID, grid_spacing=spacing).unwrapped
     env.reset(seed=0, options={"task": TASK})
     g, m, d = env.arena.grid, env.model, env.data
+    assert (g.cell, g.row_cell) == spacing and (m.hfield_nrow[0], m.hfield_ncol[0]) == (
+        g.nrow,
+        g.ncol,
+    )
     geom = np.zeros(1, dtype=np.int32)
-    for row, col in ((3, 60), (25, 100), (15, 150)):
+    for row, col in (
+        (g.nrow // 10, g.ncol // 5),
+        (g.nrow * 4 // 5, g.ncol // 3),
+        (g.nrow // 2, g.ncol // 2),
+    ):
         x, y = g.x[col], g.y[row]
         dist = mujoco.mj_ray(
             m, d, np.array([x, y, 20.0]), np.array([0, 0, -1.0]), None, 1, -1, geom
@@ -168,6 +177,10 @@ def test_other_walkers_run_on_the_field(body):
         ({"observation": "camera"}, "observation"),
         ({"task_parameters": ["block_height", "stump_height"]}, "task_parameters"),
         ({"task_parameters": "roughness"}, "task_parameters"),
+        ({"grid_spacing": 0.2}, r"grid_spacing=0\.2; valid: two spacings"),
+        ({"grid_spacing": (0.2, 0.2, 0.2)}, "grid_spacing"),
+        ({"grid_spacing": (0.01, 0.2)}, r"grid_spacing\[0\]=0\.01"),
+        ({"grid_spacing": (0.2, 0.35)}, r"grid_spacing\[1\]=0\.35.*divides"),
     ],
 )
 def test_bad_options_raise(kwargs, match):
@@ -303,20 +316,24 @@ def test_two_instances_and_a_spawned_process_agree():
     assert rollout() == rollout() == other
 
 
-@pytest.mark.parametrize("observation, one_batch", [("height_scan", True), ("lidar", False)])
-def test_batched_envs_match_single_envs(observation, one_batch):
+@pytest.mark.parametrize(
+    "observation, one_batch, spacing",
+    [
+        ("height_scan", True, (0.1, 0.2)),
+        ("lidar", False, (0.1, 0.2)),
+        ("height_scan", True, (0.5, 0.5)),
+    ],
+)
+def test_batched_envs_match_single_envs(observation, one_batch, spacing):
     n, seed = 2, 5
+    kwargs = {"observation": observation, "grid_spacing": spacing}
     vec = gym.make_vec(
-        ENV_ID,
-        num_envs=n,
-        vectorization_mode="vector_entry_point",
-        threads=2,
-        observation=observation,
+        ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", threads=2, **kwargs
     )
     # all sub-envs step as one MuJoCo batch; the height scan's rules run on (N, .) arrays,
     # ray-cast lidars' one sub-env after the other
     assert vec.unwrapped.batch.vectorised == one_batch
-    singles = [gym.make(ENV_ID, observation=observation) for _ in range(n)]
+    singles = [gym.make(ENV_ID, **kwargs) for _ in range(n)]
     obs, _ = vec.reset(seed=seed, options={"task": TASK})
     for i, env in enumerate(singles):
         np.testing.assert_array_equal(obs[i], env.reset(seed=seed + i, options={"task": TASK})[0])
@@ -353,6 +370,13 @@ def test_a_snapshot_continues_identically_and_a_bad_one_changes_nothing():
         set_env_state(other, bad)
     after = get_env_state(other)
     assert all(np.array_equal(np.asarray(before[k]), np.asarray(after[k])) for k in before)
+    coarse = gym.make(ENV_ID, grid_spacing=(0.2, 0.2))  # a state of another grid: refused
+    coarse.reset(seed=0)
+    with pytest.raises(ValueError, match=r"state\['signature'\]"):
+        set_env_state(other, get_env_state(coarse))
+    assert all(
+        np.array_equal(np.asarray(after[k]), np.asarray(v)) for k, v in get_env_state(other).items()
+    )
 
 
 # ---------------------------------------------------------------------- curriculum profile

@@ -168,14 +168,7 @@ class Terrain3DGenerator:
     """
 
     def __init__(self, start_pad: float, cell: float = CELL, row_cell: float = ROW_CELL):
-        cell = validation.real("cell", cell, *CELL_RANGE)
-        row_cell = validation.real("row_cell", row_cell, *CELL_RANGE)
-        rows = 2 * FIELD_HALF_WIDTH / row_cell
-        if abs(rows - round(rows)) > 1e-9:  # the rows span the field's width exactly
-            raise validation.fail(
-                "row_cell", row_cell, f"a spacing in {list(CELL_RANGE)} m that divides the "
-                f"field's {2 * FIELD_HALF_WIDTH:g} m width (e.g. 0.1, 0.2, 0.25, 0.5)",
-            )  # fmt: skip
+        cell, row_cell = _spacings(cell, row_cell, ("cell", "row_cell"))
         self.start_pad = float(start_pad)
         self.end_x = self.start_pad + COURSE_LENGTH
         self.grid = FieldGrid.spanning(-BACK_MARGIN, self.end_x + RUN_OUT, cell, row_cell)
@@ -240,6 +233,29 @@ class Terrain3DGenerator:
         while x < self.end_x:
             yield x
             x += BLOCK_LENGTH + spacing
+
+
+def grid_spacing(value) -> tuple[float, float]:
+    """An env's `grid_spacing` (metres between the heightfield's points along x, then across)
+    as the generator's (cell, row_cell), or a ValueError naming it."""
+    if isinstance(value, (str, bytes)) or not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise validation.fail(
+            "grid_spacing", value, "two spacings in metres, along x then across, e.g. (0.2, 0.2)"
+        )
+    return _spacings(*value, ("grid_spacing[0]", "grid_spacing[1]"))
+
+
+def _spacings(cell, row_cell, names: tuple[str, str]) -> tuple[float, float]:
+    """(cell, row_cell) as floats in `CELL_RANGE`, the rows spanning the field's width exactly."""
+    cell = validation.real(names[0], cell, *CELL_RANGE)
+    row_cell = validation.real(names[1], row_cell, *CELL_RANGE)
+    rows = 2 * FIELD_HALF_WIDTH / row_cell
+    if abs(rows - round(rows)) > 1e-9:
+        raise validation.fail(
+            names[1], row_cell, f"a spacing in {list(CELL_RANGE)} m that divides the "
+            f"field's {2 * FIELD_HALF_WIDTH:g} m width (e.g. 0.1, 0.2, 0.25, 0.5)",
+        )  # fmt: skip
+    return cell, row_cell
 
 
 def _points(start: float, cell: float, n: int, lo: float, hi: float, closed: bool) -> slice:
