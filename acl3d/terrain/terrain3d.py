@@ -163,8 +163,8 @@ class Terrain3DGenerator:
     start at its end, blocks `FIRST_BLOCK` m later. Every draw comes from the given generator
     in a fixed order (twist sign, roughness lattice, then per block: height, lateral position).
     `cell` and `row_cell` space the points along and across the field (metres, in
-    `CELL_RANGE`): the env's are `CELL` and `ROW_CELL`; a coarser grid collides faster and
-    turns blocks into wedges (scripts/bench_terrain3d_collision.py measures both).
+    `CELL_RANGE`): the env's `grid_spacing`, by default `CELL` and `ROW_CELL`; a coarser grid
+    collides faster and turns blocks into wedges (scripts/bench_terrain3d_collision.py).
     """
 
     def __init__(self, start_pad: float, cell: float = CELL, row_cell: float = ROW_CELL):
