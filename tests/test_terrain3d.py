@@ -108,12 +108,12 @@ def test_the_hardest_buildable_task_fits_the_heightfield_range():
     assert HEIGHT_RANGE[0] < h.min() and h.max() < HEIGHT_RANGE[1]
 
 
-@pytest.mark.parametrize("spacing", [(0.1, 0.2), (0.25, 0.5)])
+@pytest.mark.parametrize("spacing", [(0.1, 0.2), np.array([0.25, 0.5])])
 def test_the_compiled_heightfield_is_what_mujoco_collides_with(spacing):
     env = gym.make(ENV_ID, grid_spacing=spacing).unwrapped
     env.reset(seed=0, options={"task": TASK})
     g, m, d = env.arena.grid, env.model, env.data
-    assert (g.cell, g.row_cell) == spacing and (m.hfield_nrow[0], m.hfield_ncol[0]) == (
+    assert (g.cell, g.row_cell) == tuple(spacing) and (m.hfield_nrow[0], m.hfield_ncol[0]) == (
         g.nrow,
         g.ncol,
     )
@@ -179,6 +179,8 @@ def test_other_walkers_run_on_the_field(body):
         ({"task_parameters": "roughness"}, "task_parameters"),
         ({"grid_spacing": 0.2}, r"grid_spacing=0\.2; valid: two spacings"),
         ({"grid_spacing": (0.2, 0.2, 0.2)}, "grid_spacing"),
+        ({"grid_spacing": [[0.2, 0.2]]}, "grid_spacing"),
+        ({"grid_spacing": "0.2,0.2"}, "grid_spacing"),
         ({"grid_spacing": (0.01, 0.2)}, r"grid_spacing\[0\]=0\.01"),
         ({"grid_spacing": (0.2, 0.35)}, r"grid_spacing\[1\]=0\.35.*divides"),
     ],

@@ -238,7 +238,7 @@ class Terrain3DGenerator:
 def grid_spacing(value) -> tuple[float, float]:
     """An env's `grid_spacing` (metres between the heightfield's points along x, then across)
     as the generator's (cell, row_cell), or a ValueError naming it."""
-    if isinstance(value, (str, bytes)) or not isinstance(value, (tuple, list)) or len(value) != 2:
+    if not isinstance(value, (tuple, list, np.ndarray)) or np.shape(value) != (2,):
         raise validation.fail(
             "grid_spacing", value, "two spacings in metres, along x then across, e.g. (0.2, 0.2)"
         )
