@@ -1,6 +1,7 @@
 from pathlib import Path
 
 import pytest
+from run_safety_support import tiny_run, tiny_run_copy  # noqa: F401  (the run-safety fixtures)
 
 import acl3d  # (picks the headless GL backend and registers the environments)
 
