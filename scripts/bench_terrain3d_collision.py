@@ -16,7 +16,8 @@ interleaved rounds, against today's model (blocks stamped into a 0.1 x 0.2 m gri
   rough ground's content, rather than its grid, is what costs);
 * today's field as the env lays it out: a draw of its own in every world (the others repeat
   256 draws), then also MuJoCo Warp's reservations (the others: 192 constraint rows and 24
-  contact slots a world), where this bench's raw physics and `bench_gpu.py`'s part.
+  contact slots a world), then also `bench_gpu.py`'s 20 steps before timing (the bodies still
+  falling): where this bench's raw physics and `bench_gpu.py`'s part.
 
 Every world plays the bench task of `bench_gpu.py` (roughness 0.1 m, full-width 0.3 m blocks
 every 4.5 m), each with its own copy of the heights, with 192 constraint rows and 24 contact
@@ -64,12 +65,15 @@ class Variant(NamedTuple):
     holds: str  # FIELD, BOXES or FLAT
     own_draws: bool = False  # each world its own draw of the roughness (else one of DRAWS)
     estimates: bool = False  # MuJoCo Warp's reservations (else 192 rows and 24 slots a world)
+    warmup: int | None = None  # steps before timing (else --warmup)
 
     def label(self, grid) -> str:
         label = f"{self.cell} x {self.row_cell} m grid ({grid.ncol} x {grid.nrow}), {self.holds}"
         if self.own_draws:
             label += ", one draw a world"
-        return label + (", MuJoCo Warp's reservations" if self.estimates else "")
+        if self.estimates:
+            label += ", MuJoCo Warp's reservations"
+        return label + (f", {self.warmup} steps first" if self.warmup is not None else "")
 
 
 VARIANTS = (
@@ -81,6 +85,7 @@ VARIANTS = (
     Variant(0.1, 0.2, FLAT),
     Variant(0.1, 0.2, FIELD, own_draws=True),
     Variant(0.1, 0.2, FIELD, own_draws=True, estimates=True),
+    Variant(0.1, 0.2, FIELD, own_draws=True, estimates=True, warmup=20),
 )
 
 
@@ -141,7 +146,8 @@ def main() -> None:
     for round_ in range(1, a.rounds + 1):
         for variant in VARIANTS:
             sim, label = build(variant, a.worlds, a.device)
-            rates[label].append(raw_rate(sim, a.steps, a.warmup))
+            warmup = a.warmup if variant.warmup is None else variant.warmup
+            rates[label].append(raw_rate(sim, a.steps, warmup))
             if label not in shares:
                 times = kernel_times(sim, 3)
                 hfield = sum(s for name, s in times.items() if HFIELD_KERNEL in name)
