@@ -94,6 +94,16 @@ def test_blocks_keep_their_shape_on_the_grid():
         assert h[first - 1] == 0 and h[last + 1] == 0  # ground one cell before and after
 
 
+def test_on_the_coarsest_grid_no_block_falls_between_its_points():
+    gen = Terrain3DGenerator(start_pad=4.0, cell=0.5, row_cell=0.5)
+    for seed, spacing in enumerate(np.linspace(1.0, 6.0, 11)):  # the benchmark's spacings
+        task = {"block_height": 1.0, "block_width": 0.1, "block_spacing": spacing}  # 0.6 m wide
+        h = gen.heights(task, np.random.default_rng(seed))
+        columns = np.flatnonzero((h > 0.5).any(axis=0))
+        rows_of_blocks = 1 + np.count_nonzero(np.diff(columns) > 1) if len(columns) else 0
+        assert rows_of_blocks == len(list(gen.block_starts(spacing)))
+
+
 def test_the_hardest_buildable_task_fits_the_heightfield_range():
     gen = Terrain3DGenerator(start_pad=4.0)
     worst = {
@@ -183,6 +193,8 @@ def test_other_walkers_run_on_the_field(body):
         ({"grid_spacing": "0.2,0.2"}, "grid_spacing"),
         ({"grid_spacing": (0.01, 0.2)}, r"grid_spacing\[0\]=0\.01"),
         ({"grid_spacing": (0.2, 0.35)}, r"grid_spacing\[1\]=0\.35.*divides"),
+        ({"grid_spacing": (0.6, 0.2)}, r"grid_spacing\[0\]=0\.6; valid: .*\[0\.05, 0\.5\]"),
+        ({"grid_spacing": (0.2, 0.6)}, r"grid_spacing\[1\]=0\.6"),
     ],
 )
 def test_bad_options_raise(kwargs, match):

@@ -23,7 +23,10 @@ from acl3d.task_space import TaskParameter, TaskSpace
 # 0.2 m of flat top between two 0.2 m ramps); 0.1 m across too would cost another ~15% of a step.
 CELL = 0.1
 ROW_CELL = 0.2
-CELL_RANGE = (0.05, 1.0)  # metres: the spacings a generator accepts (coarser: faster contacts)
+# metres: the spacings a generator accepts (coarser: faster contacts); on a coarser grid than
+# a block (0.5 m long, 0.6 m wide at the benchmark's narrowest) whole blocks would fall between
+# its points
+CELL_RANGE = (0.05, 0.5)
 FIELD_HALF_WIDTH = 3.0  # metres: the field spans y in [-3, 3]; leaving it ends the episode
 COURSE_LENGTH = 20.0  # metres of terrain from the end of the start pad to the finish line
 RUN_OUT = 5.0  # metres of field after the finish line
