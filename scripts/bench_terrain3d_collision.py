@@ -45,12 +45,7 @@ from acl3d.envs.arena import CONTROL_DT
 from acl3d.envs.terrain3d_arena import Terrain3DArena
 from acl3d.envs.world_families import TERRAIN
 from acl3d.sim.warp_backend import WarpSimulation
-from acl3d.terrain.terrain3d import (
-    BLOCK_LENGTH,
-    HEIGHT_RANGE,
-    Terrain3DGenerator,
-    start_pad_for,
-)
+from acl3d.terrain.terrain3d import BLOCK_LENGTH, Terrain3DGenerator, start_pad_for
 
 TASK = {"roughness": 0.1, "block_height": 0.3}  # bench_gpu.py's, without its ~0 degree slopes
 SPACING = 4.0  # metres between blocks: the task space's default block_spacing
@@ -101,19 +96,18 @@ def build(v: Variant, worlds: int, device: str):
     elif v.holds == FLAT:
         task = {"roughness": 0.0, "block_height": 0.0}
     model.opt.timestep = CONTROL_DT / body.frame_skip
-    lo, hi = HEIGHT_RANGE
     n = worlds if v.own_draws else min(worlds, DRAWS)
-    draws = [generator.heights(task, np.random.default_rng(i)) for i in range(n)]
+    draws = np.stack([generator.heights(task, np.random.default_rng(i)) for i in range(n)])
     reserved = (None, None) if v.estimates else (192, 24)
     sim = WarpSimulation(model, worlds, body.frame_skip, TERRAIN, device, *reserved)
-    rows = torch.as_tensor((np.stack(draws) - lo) / (hi - lo), device=sim.device, dtype=sim.dtype)
+    rows = torch.as_tensor(arena.fractions(draws), device=sim.device, dtype=sim.dtype)
     world = torch.arange(worlds, device=sim.device)
-    sim.terrain("terrain").copy_(rows[world % len(draws)])
+    sim.terrain("terrain").copy_(rows[world % n])
     data = mujoco.MjData(model)
     arena.bound.place(data, arena.start_x, body.spawn_height)
     qpos = torch.as_tensor(data.qpos, device=sim.device).expand(worlds, -1)
     qvel = torch.zeros((worlds, model.nv), device=sim.device)
-    sim.reset_worlds(torch.arange(worlds, device=sim.device), qpos, qvel)
+    sim.reset_worlds(world, qpos, qvel)
     return sim, v.label(generator.grid)
 
 

@@ -78,8 +78,13 @@ class Terrain3DArena(Arena):
         guards the heightfield's [0, 1] encoding against rounding at its ends.
         """
         self.heights = heights
-        np.clip((heights - self._offset) * self._inv_range, 0.0, 1.0, out=self._hfield)
+        np.clip(self.fractions(heights), 0.0, 1.0, out=self._hfield)
         self.version += 1
+
+    def fractions(self, heights):
+        """Heights in metres (numpy or torch, any shape) as the heightfield stores them: their
+        fraction of `HEIGHT_RANGE`, unclipped (the many-world simulation writes its worlds' own)."""
+        return (heights - self._offset) * self._inv_range
 
 
 def _lighting(spec: mujoco.MjSpec, half_length: float, half_width: float) -> None:

@@ -148,7 +148,7 @@ class Terrain3DWorlds(WorldFamily):
         self._check_buildable(tasks, self._buildable)
         draws = self.fields3d.draws(len(ids), generator)
         field = self.fields3d.heights(torch.as_tensor(tasks, device=self.device), draws)
-        return field, ((field - arena._offset) * arena._inv_range).clamp(0.0, 1.0)
+        return field, arena.fractions(field).clamp(0.0, 1.0)
 
 
 class ParkourWorlds(WorldFamily):
