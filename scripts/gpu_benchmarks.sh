@@ -21,6 +21,11 @@
 #                                          # grids, with its blocks as box geoms, and
 #                                          # laid out as the env does (a draw a world,
 #                                          # MuJoCo Warp's reservations)
+#   scripts/gpu_benchmarks.sh tiles OUT    # 3D Terrain's raw physics at 16,384 worlds, timed
+#                                          # after 40 and after 120 steps (bodies lying down):
+#                                          # each world's field only as tall as its ground, and
+#                                          # cut into 2 m and 1 m tiles; then the kernels after
+#                                          # 120 steps
 #   scripts/gpu_benchmarks.sh grids OUT    # 3D Terrain's big quadruped through the env at
 #                                          # 16,384 worlds on its grid and on coarser ones
 #                                          # (grid_spacing 0.2 x 0.2 and 0.5 x 0.5 m)
@@ -48,7 +53,7 @@
 # [0, 6], classic biped, rsl-ppo's benchmark preset, 4,096 worlds, the 100-task grid with
 # sampled actions, ALP-GMM with fit_lag 100.
 set -uo pipefail
-stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|terrain|grids|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
+stage=${1:?usage: scripts/gpu_benchmarks.sh cpu|env|levers|kernels|terrain|tiles|grids|speed|teachers|update|actions|repeat|learn|summary|pack OUT ...}
 out=${2:?usage: scripts/gpu_benchmarks.sh STAGE OUT ...}
 mkdir -p "$out/runs"
 cores=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)  # nproc alone counts OMP_NUM_THREADS
@@ -98,6 +103,14 @@ kernels)  # why 3D Terrain's raw physics is slower than Stump Tracks' (kernel sh
 terrain)  # what other terrain geometry would gain 3D Terrain's raw physics
   python3 scripts/bench_terrain3d_collision.py --device cuda --worlds 16384 --steps 50 \
     --rounds 1 2>&1 | grep -v '^Module' | tee "$out/terrain.txt"
+  ;;
+tiles)  # whether a GPU pays the slowest collision thread, which tiles would shorten
+  {
+    python3 scripts/bench_terrain3d_collision.py --device cuda --worlds 16384 --steps 50 \
+      --warmup 40 120 --rounds 1 --variants 6 9 10 11
+    python3 scripts/profile_warp_kernels.py --device cuda --env terrain3d --body big_quadru \
+      --worlds 16384 --steps 20 --warmup 120 --constraint-rows 192 --contact-slots 24
+  } 2>&1 | grep -v '^Module' | tee "$out/tiles.txt"
   ;;
 grids)  # what a coarser grid (Terrain3DEnv's grid_spacing) gains the env, rules and resets in
   for spacing in 0.1,0.2 0.2,0.2 0.5,0.5; do

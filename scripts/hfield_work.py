@@ -1,0 +1,139 @@
+"""How much heightfield work each collision thread of 3D Terrain's many-world physics does.
+
+    python scripts/hfield_work.py                          # 256 worlds on Warp's CPU device
+    python scripts/hfield_work.py --worlds 128 --ages 0 40 80 120 160 --tiles 2 1
+
+MuJoCo Warp collides a geom with a heightfield in one thread: it visits every prism under the
+geom's bounding box (a cheap height test each) and runs GJK on those that reach the geom's
+lowest point (EPA too where they touch). On a GPU a kernel lasts as long as its slowest thread,
+on a CPU the sum of all, so where that work lies decides what a change gains on each. This
+counts it, the way MuJoCo Warp's `ccd_hfield` kernel bounds it, from the worlds' states (CPU
+MuJoCo's kinematics on each world's qpos and its own heights):
+
+* raw physics at the ages given (random controls from the placed bodies, no rules, no resets:
+  `bench_gpu.py`'s raw physics), then the env's steady state (`ManyWorlds.step`, its rules
+  ending episodes: a quadruped whose hull touches the ground is reset);
+* per collision pair (a body geom against the field, or against one tile of it when the field
+  is cut into `--tiles` metres along x, as `bench_terrain3d_collision.py`'s tile variants):
+  the prisms visited and those given to GJK, their mean, 99th percentile and maximum, and the
+  heightfield kernel's time on Warp's CPU device.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import mujoco
+import numpy as np
+import torch
+from bench_gpu import make_env
+from profile_warp_kernels import HFIELD_KERNEL, kernel_times
+
+
+def pair_work(env, tile_cols: int | None) -> np.ndarray:
+    """(pairs, 3): prisms visited and prisms given to GJK by each (geom, field or tile) pair
+    of every world, as `ccd_hfield` bounds them (the geom's box in the field's frame, the prisms
+    with a corner at or above the geom's lowest point); then the prisms visited were each
+    field (or tile) only as tall as its own highest point (none where the geom is above it)."""
+    model, sim = env.template.model, env.sim
+    data = mujoco.MjData(model)
+    field = model.geom("terrain")
+    hfield = model.hfield(field.dataid[0])
+    half_x, half_y, top = hfield.size[:3]
+    ncol, nrow = int(hfield.ncol[0]), int(hfield.nrow[0])
+    heights = sim.terrain("terrain").cpu().numpy() * top
+    qpos = sim.field("qpos").cpu().numpy()
+    per_x, per_y = (ncol - 1) / (2 * half_x), (nrow - 1) / (2 * half_y)
+    geoms = [
+        g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and model.geom_conaffinity[g]
+    ]
+    work = []
+    for w in range(sim.nworld):
+        data.qpos[:] = qpos[w]
+        mujoco.mj_kinematics(model, data)
+        for g in geoms:
+            lo, hi = _box(model, data, g, field.pos)
+            cmin, cmax = (
+                max(0, int(np.floor((lo[0] + half_x) * per_x))),
+                min(ncol - 1, int(np.ceil((hi[0] + half_x) * per_x))),
+            )
+            rmin, rmax = (
+                max(0, int(np.floor((lo[1] + half_y) * per_y))),
+                min(nrow - 1, int(np.ceil((hi[1] + half_y) * per_y))),
+            )
+            if rmax <= rmin or cmax <= cmin:
+                continue
+            up = heights[w, rmin : rmax + 1, cmin : cmax + 1] >= lo[2]
+            reaching = (up[:-1, :-1] | up[1:, :-1] | up[:-1, 1:] | up[1:, 1:]).sum(0) * 2
+            tiles = np.arange(cmin, cmax) // (tile_cols or ncol)
+            for t in np.unique(tiles):
+                on = tiles == t
+                visited = int(on.sum()) * (rmax - rmin) * 2
+                span = slice(t * (tile_cols or ncol), (t + 1) * (tile_cols or ncol) + 1)
+                below = heights[w, :, span].max() < lo[2]
+                work.append((visited, int(reaching[on].sum()), 0 if below else visited))
+    return np.array(work)
+
+
+def _box(model, data, g: int, field_pos) -> tuple[np.ndarray, np.ndarray]:
+    """Geom g's axis-aligned box in the field's frame (the field is not rotated)."""
+    centre, rot = data.geom_xpos[g] - field_pos, data.geom_xmat[g].reshape(3, 3)
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        radius, half_length = model.geom_size[g][:2]
+        extent = np.abs(rot[:, 2]) * half_length + radius
+    else:  # a box around the mesh's (or primitive's) own box
+        extent = np.abs(rot) @ model.geom_size[g]
+    return centre - extent, centre + extent
+
+
+STATE = ("qpos", "qvel", "qacc_warmstart", "time")
+
+
+def report(label: str, env, tiles: list[float]) -> None:
+    saved = {name: env.sim.field(name).clone() for name in STATE}
+    times = kernel_times(env.sim, 2)  # 2 raw steps on from this state, then back to it
+    for name, value in saved.items():
+        env.sim.field(name).copy_(value)
+    hfield = sum(s for name, s in times.items() if HFIELD_KERNEL in name)
+    print(f"{label}: heightfield kernel {1000 * hfield / 2:.1f} ms a step "
+          f"({hfield / sum(times.values()):.0%} of the kernels)")  # fmt: skip
+    cell = env.template.arena.grid.cell
+    for tile in [None, *tiles]:
+        work = pair_work(env, None if tile is None else max(1, round(tile / cell)))
+        visited, gjk, fitted = work[:, 0], work[:, 1], work[:, 2]
+        print(f"  {'whole field' if tile is None else f'{tile:g} m tiles':>12}: "
+              f"{len(work) / env.num_envs:4.1f} pairs a world; prisms visited a pair: mean "
+              f"{visited.mean():5.0f} p99 {np.percentile(visited, 99):5.0f} max {visited.max():5d}; "
+              f"to GJK: mean {gjk.mean():5.1f} p99 {np.percentile(gjk, 99):5.0f} max {gjk.max():5d}; "
+              f"GJK a world {gjk.sum() / env.num_envs:5.1f}; visited were it as tall as its "
+              f"ground: mean {fitted.mean():5.0f} p99 {np.percentile(fitted, 99):5.0f} max "
+              f"{fitted.max():5d}", flush=True)  # fmt: skip
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--worlds", type=int, default=256)
+    p.add_argument("--ages", type=int, nargs="+", default=[40, 120], help="raw physics steps")
+    p.add_argument("--env-steps", type=int, default=300, help="env steps to its steady state")
+    p.add_argument("--tiles", type=float, nargs="*", default=[2.0, 1.0], help="tile lengths, m")
+    a = p.parse_args()
+    env = make_env(a.worlds, "cpu", "terrain3d", "big_quadru", 192, 48)
+    ctrl, g = env.sim.field("ctrl"), torch.Generator().manual_seed(1)
+    print(f"3D Terrain, big_quadru, {a.worlds} worlds (bench_gpu.py's task) on Warp's CPU device")
+    age = 0
+    for target in sorted(a.ages):
+        for _ in range(target - age):
+            ctrl.copy_(torch.rand(ctrl.shape, generator=g) * 2 - 1)
+            env.sim.step()
+        age = target
+        report(f"raw physics after {age} steps", env, a.tiles)
+    env.reset(seed=0)
+    for _ in range(a.env_steps):
+        env.step(torch.rand((env.num_envs, env.action_size), generator=g) * 2 - 1)
+    mean_age = float(env.elapsed.float().mean())
+    report(f"env after {a.env_steps} steps (episodes {mean_age:.0f} steps old on average)", env,
+           a.tiles)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
