@@ -15,8 +15,9 @@ MuJoCo's kinematics on each world's qpos and its own heights):
   ending episodes: a quadruped whose hull touches the ground is reset);
 * per collision pair (a body geom against the field, or against one tile of it when the field
   is cut into `--tiles` metres along x, as `bench_terrain3d_collision.py`'s tile variants):
-  the prisms visited and those given to GJK, their mean, 99th percentile and maximum, and the
-  heightfield kernel's time on Warp's CPU device.
+  the prisms visited (were the field as tall as the compiled one, 10 m, and as it is, each
+  world's copy as tall as its own ground) and those given to GJK: their mean, 99th percentile
+  and maximum; and the heightfield kernel's time on Warp's CPU device.
 """
 
 from __future__ import annotations
@@ -33,15 +34,17 @@ from profile_warp_kernels import HFIELD_KERNEL, kernel_times
 def pair_work(env, tile_cols: int | None) -> np.ndarray:
     """(pairs, 3): prisms visited and prisms given to GJK by each (geom, field or tile) pair
     of every world, as `ccd_hfield` bounds them (the geom's box in the field's frame, the prisms
-    with a corner at or above the geom's lowest point); then the prisms visited were each
-    field (or tile) only as tall as its own highest point (none where the geom is above it)."""
+    with a corner at or above the geom's lowest point), were the field as tall as the compiled
+    one (10 m); then the prisms visited as it is, each field (or tile) only as tall as its own
+    highest point (none where the geom is above it)."""
     model, sim = env.template.model, env.sim
     data = mujoco.MjData(model)
     field = model.geom("terrain")
     hfield = model.hfield(field.dataid[0])
-    half_x, half_y, top = hfield.size[:3]
+    half_x, half_y = hfield.size[:2]
     ncol, nrow = int(hfield.ncol[0]), int(hfield.nrow[0])
-    heights = sim.terrain("terrain").cpu().numpy() * top
+    tops = sim.terrain_tops("terrain")[:, None, None]  # metres: each world's own
+    heights = (sim.terrain("terrain") * tops).cpu().numpy()
     qpos = sim.field("qpos").cpu().numpy()
     per_x, per_y = (ncol - 1) / (2 * half_x), (nrow - 1) / (2 * half_y)
     geoms = [
@@ -87,6 +90,7 @@ def _box(model, data, g: int, field_pos) -> tuple[np.ndarray, np.ndarray]:
 
 
 STATE = ("qpos", "qvel", "qacc_warmstart", "time")
+WORK = ("prisms visited, at the compiled top", "prisms to GJK", "prisms visited, at each own top")
 
 
 def report(label: str, env, tiles: list[float]) -> None:
@@ -100,14 +104,13 @@ def report(label: str, env, tiles: list[float]) -> None:
     cell = env.template.arena.grid.cell
     for tile in [None, *tiles]:
         work = pair_work(env, None if tile is None else max(1, round(tile / cell)))
-        visited, gjk, fitted = work[:, 0], work[:, 1], work[:, 2]
-        print(f"  {'whole field' if tile is None else f'{tile:g} m tiles':>12}: "
-              f"{len(work) / env.num_envs:4.1f} pairs a world; prisms visited a pair: mean "
-              f"{visited.mean():5.0f} p99 {np.percentile(visited, 99):5.0f} max {visited.max():5d}; "
-              f"to GJK: mean {gjk.mean():5.1f} p99 {np.percentile(gjk, 99):5.0f} max {gjk.max():5d}; "
-              f"GJK a world {gjk.sum() / env.num_envs:5.1f}; visited were it as tall as its "
-              f"ground: mean {fitted.mean():5.0f} p99 {np.percentile(fitted, 99):5.0f} max "
-              f"{fitted.max():5d}", flush=True)  # fmt: skip
+        where = "whole field" if tile is None else f"{tile:g} m tiles"
+        print(f"  {where}: {len(work) / env.num_envs:.1f} pairs a world, "
+              f"GJK {work[:, 1].sum() / env.num_envs:.1f} prisms a world")  # fmt: skip
+        for column, what in enumerate(WORK):
+            values = work[:, column]
+            print(f"    {what:>34}: mean {values.mean():6.1f}  p99 "
+                  f"{np.percentile(values, 99):5.0f}  max {values.max():5d}")  # fmt: skip
 
 
 def main() -> None:
