@@ -106,8 +106,8 @@ def test_warp_steps_as_cpu_mujoco_over_the_first_steps(worlds):
     sim = worlds.sim
     heights = torch.as_tensor(cpu.arena.heights, dtype=torch.float32)
     worlds.heights[1, : len(heights)] = heights
-    sim.set_terrain(
-        "terrain", torch.tensor([1]), torch.as_tensor(cpu.model.hfield_data).view(1, 2, -1)
+    sim.terrain("terrain")[1] = torch.as_tensor(
+        cpu.model.hfield_data.reshape(2, -1), dtype=torch.float32
     )
     qpos = torch.as_tensor(cpu.data.qpos, dtype=torch.float32)[None]
     qvel = torch.as_tensor(cpu.data.qvel, dtype=torch.float32)[None]
@@ -178,7 +178,6 @@ def test_resetting_some_worlds_leaves_the_others_untouched(worlds):
     sim = worlds.sim
     before = {name: sim.field(name)[1].clone() for name in ("qpos", "qvel")}
     terrain_before = sim.terrain("terrain")[1].clone()
-    top_before = sim.terrain_tops("terrain")[1].clone()
     heights_before = worlds.heights[1].clone()
     obs_before = worlds.obs.clone()
     task = worlds.task_space.to_vector({"stump_height": 2.0, "obstacle_spacing": 1.0})
@@ -186,7 +185,6 @@ def test_resetting_some_worlds_leaves_the_others_untouched(worlds):
     for name, value in before.items():
         assert torch.equal(sim.field(name)[1], value), name
     assert torch.equal(sim.terrain("terrain")[1], terrain_before)
-    assert torch.equal(sim.terrain_tops("terrain")[1], top_before)
     assert torch.equal(worlds.heights[1], heights_before)
     assert torch.equal(obs[1], obs_before[1])
     assert not torch.equal(sim.terrain("terrain")[0], terrain_before)  # world 0's new stumps
@@ -226,9 +224,8 @@ def test_a_reset_with_a_period_repeats_the_first_worlds_draws():
         env.tasks[:, 1] = np.resize([1.0, 4.0], env.num_envs)  # two spacings per block
     first, single = copies.reset(seed=3, period=2), alone.reset(seed=3)
     assert torch.equal(first[:2], single) and torch.equal(first[2:], single)
-    terrain, tops = copies.sim.terrain("terrain"), copies.sim.terrain_tops("terrain")
+    terrain = copies.sim.terrain("terrain")
     assert torch.equal(terrain[:2], terrain[2:]) and not torch.equal(terrain[0], terrain[1])
-    assert torch.equal(tops[:2], tops[2:])
     with pytest.raises(ValueError, match=r"period=5; valid: an integer in \[1, 4\]"):
         copies.reset(seed=3, period=5)
     with pytest.raises(ValueError, match="period=0; valid"):

@@ -209,7 +209,7 @@ class ManyWorlds:
         push = self.family.push(ids, self._generator, self._rngs)
         index = torch.as_tensor(ids, device=self.device)
         self.heights[index, ..., : sensed.shape[-1]] = sensed.to(self.sim.dtype)
-        self.sim.set_terrain("terrain", index, rows)
+        self.sim.terrain("terrain")[index] = rows.to(self.sim.dtype)
         qpos = torch.as_tensor(self._home_qpos, device=self.device).expand(len(ids), -1)
         qvel = torch.zeros((len(ids), env.model.nv), device=self.device, dtype=self.sim.dtype)
         qvel[:, env.arena.bound.root_dof] = (push * self._push_scale).to(self.sim.dtype)
@@ -231,7 +231,6 @@ class ManyWorlds:
         k, starts = len(index), self.starts
         rows = torch.arange(k, device=self.device)
         starts.terrain("terrain")[:k] = self.sim.terrain("terrain")[index]
-        starts.terrain_tops("terrain")[:k] = self.sim.terrain_tops("terrain")[index]
         starts.force_caps()[:k] = self.sim.force_caps()[index]
         starts.reset_worlds(rows, qpos, qvel)
         starts.forward()
@@ -301,7 +300,6 @@ class ManyWorlds:
             {
                 "sim/force_caps": _host(sim.force_caps()),
                 "sim/terrain": _host(sim.terrain("terrain")),
-                "sim/terrain_tops": _host(sim.terrain_tops("terrain")),
                 "heights": _host(self.heights),
                 "prev_shaping": _host(self.prev_shaping),
                 "elapsed": _host(self.elapsed),
@@ -327,9 +325,6 @@ class ManyWorlds:
                 sim.field(name).copy_(torch.as_tensor(state[f"sim/{name}"]))
         sim.force_caps().copy_(torch.as_tensor(state["sim/force_caps"]))
         sim.terrain("terrain").copy_(torch.as_tensor(state["sim/terrain"]))
-        # states saved before each world's heightfield had a top of its own: the compiled one
-        tops = state.get("sim/terrain_tops", self.template.model.hfield("terrain").size[2])
-        sim.terrain_tops("terrain").copy_(torch.as_tensor(tops))
         for name in ("heights", "prev_shaping", "elapsed", "obs"):
             getattr(self, name).copy_(torch.as_tensor(state[name]))
         self.tasks[:] = state["tasks"]

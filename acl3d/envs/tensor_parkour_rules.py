@@ -148,7 +148,7 @@ class TensorParkourRules(TrackRules):
         actions = actions.masked_fill(dead, 0.0)
         ceiling = rec(heights, "ceiling")
         rows = ((self.ceiling_hi - ceiling) / (self.ceiling_hi - self.ceiling_lo)).clamp(0.0, 1.0)
-        sim.set_terrain("ceiling", None, rows[:, None, :])
+        sim.terrain("ceiling").copy_(rows[:, None, :].expand_as(sim.terrain("ceiling")))
         xfrc = sim.field("xfrc_applied")
         xfrc[:, self.water.body_ids, 0::2] = rec(heights, "forces").unflatten(1, (-1, 3))
         if self.hands:

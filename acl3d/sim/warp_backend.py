@@ -11,12 +11,7 @@ a leading world dimension there:
   `geom_dataid` (N, ngeom) routes world i's terrain geom to its own copy. This is the route MuJoCo
   Warp's collision reads per world; the alternative, one large tiled heightfield with a tile per
   world, would move every world's body to its own tile and change what the rules read (x), so it
-  was not taken (docs/architecture.md compares the two). Each copy is only as tall as its
-  world's own highest point: `set_terrain` stores a world's heights as fractions of that top
-  and writes the top into its copy's `hfield_size`. The heights are the same (to a rounding);
-  what changes is that MuJoCo Warp skips a geom above the top without visiting a prism under
-  it, where the compiled range (3D Terrain's reaches 10 m) had every geom of every body visit
-  every prism under its box, in one thread per geom (docs/benchmarks.md).
+  was not taken (docs/architecture.md compares the two).
 
 Every array is read and written through zero-copy torch views (`warp.to_torch`). The `nstep`
 substeps of a step and a `forward` are each captured once as a graph and replayed
@@ -41,7 +36,6 @@ from acl3d.sim.worlds import MAX_WORLDS, WorldFields
 MAX_CONSTRAINT_ROWS = 8192  # MuJoCo Warp's largest estimate; more is memory for nothing here
 MAX_CONTACT_SLOTS = 8192  # the same bound for the contact slots
 
-_LOWEST_TOP = 1e-6  # a heightfield copy's least top, as a fraction of its compiled one
 _FIELDS = (
     *("qpos", "qvel", "ctrl", "xpos", "xmat", "cvel", "cdof_dot", "sensordata", "qacc_warmstart"),
     "time",
@@ -145,7 +139,7 @@ class WarpSimulation:
         wp, m, n = self._wp, self.m, self.nworld
         if not fields.terrain_hfields:
             return {}
-        sizes = [model.hfield_size.copy().astype(np.float32)]
+        sizes = [model.hfield_size.copy()]
         nrows, ncols = [model.hfield_nrow.copy()], [model.hfield_ncol.copy()]
         adrs, data = [model.hfield_adr.copy()], [model.hfield_data.astype(np.float32)]
         dataid = np.tile(model.geom_dataid, (n, 1)).astype(np.int32)
@@ -162,7 +156,7 @@ class WarpSimulation:
             own = model.hfield_data[model.hfield_adr[h] : model.hfield_adr[h] + size]
             data.append(np.tile(own.astype(np.float32), n))
             dataid[:, model.geom(geom).id] = next_id + np.arange(n)
-            spans[name] = (next_adr, nrow, ncol, next_id)
+            spans[name] = (next_adr, nrow, ncol)
             next_id, next_adr = next_id + n, next_adr + n * size
         m.hfield_size = wp.array(np.concatenate(sizes).astype(np.float32), dtype=wp.vec4)
         m.hfield_nrow = wp.array(np.concatenate(nrows).astype(np.int32), dtype=int)
@@ -171,14 +165,10 @@ class WarpSimulation:
         m.hfield_data = wp.array(np.concatenate(data), dtype=float)
         m.geom_dataid = wp.array(dataid, dtype=int)
         m.nhfield, m.nhfielddata = next_id, next_adr
-        flat, tops = wp.to_torch(m.hfield_data), wp.to_torch(m.hfield_size)[:, 2]
+        flat = wp.to_torch(m.hfield_data)
         return {
-            name: _WorldHeightfields(
-                flat[adr : adr + n * nrow * ncol].view(n, nrow, ncol),
-                tops[first : first + n],
-                float(model.hfield_size[model.hfield(name).id, 2]),
-            )
-            for name, (adr, nrow, ncol, first) in spans.items()
+            name: flat[adr : adr + n * nrow * ncol].view(n, nrow, ncol)
+            for name, (adr, nrow, ncol) in spans.items()
         }
 
     # ------------------------------------------------------------------ the Simulation protocol
@@ -203,17 +193,6 @@ class WarpSimulation:
         self.force_caps()[:, index] = ranges
 
     def terrain(self, hfield: str) -> torch.Tensor:
-        return self._heightfields(hfield).data
-
-    def terrain_tops(self, hfield: str) -> torch.Tensor:
-        return self._heightfields(hfield).tops
-
-    def set_terrain(self, hfield: str, ids: torch.Tensor | None, elevations: torch.Tensor) -> None:
-        self._heightfields(hfield).write(ids, elevations.to(self.dtype))
-
-    def _heightfields(self, hfield: str) -> _WorldHeightfields:
-        if hfield not in self._terrain:
-            raise ValueError(f"hfield={hfield!r}; valid: {sorted(self._terrain)} (declared)")
         return self._terrain[hfield]
 
     @property
@@ -279,26 +258,3 @@ class WarpSimulation:
             wp.capture_launch(graph, stream=stream if cuda else None)
         if cuda:
             torch_stream.wait_stream(stream)
-
-
-class _WorldHeightfields:
-    """The worlds' copies of one heightfield asset: `data` (N, nrow, ncol), MuJoCo Warp's elevation
-    data, each world's as fractions of its own top; `tops` (N,), a live view of each copy's
-    `hfield_size[2]` (metres); `compiled`, the asset's compiled top (see the module docstring)."""
-
-    def __init__(self, data: torch.Tensor, tops: torch.Tensor, compiled: float):
-        self.data, self.tops, self.compiled = data, tops, compiled
-
-    def write(self, ids: torch.Tensor | None, elevations: torch.Tensor) -> None:
-        """Worlds `ids` (None: all) get `elevations`, fractions of the compiled top."""
-        shape = self.data.shape if ids is None else (len(ids), *self.data.shape[1:])
-        elevations = elevations.expand(shape)
-        # a world all at its floor keeps a top of its own: its 0 elevations divide by it to 0
-        tops = elevations.flatten(1).amax(1).clamp_min(_LOWEST_TOP)
-        data = elevations / tops[:, None, None]
-        if ids is None:
-            self.data.copy_(data)
-            self.tops.copy_(tops * self.compiled)
-        else:
-            self.data.index_copy_(0, ids, data)
-            self.tops.index_copy_(0, ids, tops * self.compiled)

@@ -76,19 +76,7 @@ class Simulation(Protocol):
         ...
 
     def terrain(self, hfield: str) -> torch.Tensor:
-        """Live (N, nrow, ncol) elevation data of a declared terrain heightfield, each world's
-        as fractions (0..1) of its own top (`terrain_tops`)."""
-        ...
-
-    def terrain_tops(self, hfield: str) -> torch.Tensor:
-        """Live (N,) top of each world's copy of a declared terrain heightfield, in metres above
-        its base: its highest point, so that geoms above it skip its prisms."""
-        ...
-
-    def set_terrain(self, hfield: str, ids: torch.Tensor | None, elevations: torch.Tensor) -> None:
-        """Worlds `ids` (None: all) get `elevations` on a declared terrain heightfield: (k, nrow,
-        ncol), broadcast, as fractions of the compiled heightfield's top (MuJoCo's 0..1 data);
-        sets their `terrain` and `terrain_tops`."""
+        """Live (N, nrow, ncol) per-world elevation data (0..1) of a declared terrain heightfield."""
         ...
 
     def reset_worlds(self, ids: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> None:
