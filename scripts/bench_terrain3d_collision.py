@@ -18,10 +18,9 @@ interleaved rounds, against today's model (blocks stamped into a 0.1 x 0.2 m gri
   256 draws), then also MuJoCo Warp's reservations (the others: 192 constraint rows and 24
   contact slots a world), then also `bench_gpu.py`'s 20 steps before timing (the bodies still
   falling): where this bench's raw physics and `bench_gpu.py`'s part;
-* today's field with each world's heightfield as tall as the compiled one (10 m above the
-  ground), as before `WarpSimulation.set_terrain` made each world's copy only as tall as its
-  own highest point: MuJoCo Warp skips a geom above a heightfield's top without visiting its
-  prisms, and at the compiled top every geom visits every prism under its box;
+* today's field with each world's heightfield only as tall as its own highest point: MuJoCo
+  Warp skips a geom above a heightfield's top without visiting its prisms, and at the compiled
+  top (10 m above the ground) every geom visits every prism under its box;
 * today's field cut along x into tiles 1 or 2 m long, each its own heightfield and geom (each
   as tall as its own ground): the same prisms, but one thread per geom and tile instead of one
   per geom, so that a body lying on the ground is no longer one thread's serial work.
@@ -56,7 +55,7 @@ from profile_warp_kernels import HFIELD_KERNEL, kernel_times
 from acl3d.bodies import make_body
 from acl3d.envs.arena import CONTROL_DT
 from acl3d.envs.terrain3d_arena import Terrain3DArena
-from acl3d.sim.warp_backend import WarpSimulation
+from acl3d.sim.warp_backend import WarpSimulation, import_warp
 from acl3d.sim.worlds import WorldFields
 from acl3d.terrain.terrain3d import BLOCK_LENGTH, Terrain3DGenerator, start_pad_for
 
@@ -74,7 +73,7 @@ class Variant(NamedTuple):
     own_draws: bool = False  # each world its own draw of the roughness (else one of DRAWS)
     estimates: bool = False  # MuJoCo Warp's reservations (else 192 rows and 24 slots a world)
     warmup: int | None = None  # steps before timing (else --warmup)
-    full_range: bool = False  # each world's heightfield as tall as the compiled one (10 m)
+    own_top: bool = False  # each world's heightfield (or tile) only as tall as its own ground
     tile: float | None = None  # metres: the field cut into tiles this long along x
 
     @property
@@ -90,8 +89,8 @@ class Variant(NamedTuple):
             label += ", MuJoCo Warp's reservations"
         if self.tile:
             label += f", {self.tile:g} m tiles"
-        if self.full_range:
-            label += ", each world's field as tall as the compiled one"
+        elif self.own_top:
+            label += ", each world's field only as tall as its ground"
         return label + (f", {self.warmup} steps first" if self.warmup is not None else "")
 
 
@@ -105,9 +104,9 @@ VARIANTS = (
     Variant(0.1, 0.2, FIELD, own_draws=True),
     Variant(0.1, 0.2, FIELD, own_draws=True, estimates=True),
     Variant(0.1, 0.2, FIELD, own_draws=True, estimates=True, warmup=20),
-    Variant(0.1, 0.2, FIELD, own_draws=True, full_range=True),
-    Variant(0.1, 0.2, FIELD, own_draws=True, tile=2.0),
-    Variant(0.1, 0.2, FIELD, own_draws=True, tile=1.0),
+    Variant(0.1, 0.2, FIELD, own_draws=True, own_top=True),
+    Variant(0.1, 0.2, FIELD, own_draws=True, own_top=True, tile=2.0),
+    Variant(0.1, 0.2, FIELD, own_draws=True, own_top=True, tile=1.0),
 )
 
 
@@ -135,12 +134,9 @@ def build(v: Variant, worlds: int, device: str):
     rows = torch.as_tensor(arena.fractions(draws), device=sim.device, dtype=sim.dtype)
     world = torch.arange(worlds, device=sim.device)
     for name, columns in spans.items():
-        elevations = rows[world % n][:, :, columns]
-        if v.full_range:  # as before each copy had a top of its own: the compiled one
-            sim.terrain(name).copy_(elevations)
-            sim.terrain_tops(name).fill_(float(model.hfield(name).size[2]))
-        else:
-            sim.set_terrain(name, None, elevations)
+        sim.terrain(name).copy_(rows[world % n][:, :, columns])
+    if v.own_top:
+        _own_tops(sim, model, tuple(spans))
     data = mujoco.MjData(model)
     arena.bound.place(data, arena.start_x, body.spawn_height)
     qpos = torch.as_tensor(data.qpos, device=sim.device).expand(worlds, -1)
@@ -188,6 +184,20 @@ def _tiled(arena: Terrain3DArena, tile: float) -> tuple[mujoco.MjModel, dict[str
         spans[name] = slice(first, last + 1)
     spec.delete(terrain)
     return spec.compile(), spans
+
+
+def _own_tops(sim: WarpSimulation, model: mujoco.MjModel, names: tuple[str, ...]) -> None:
+    """Each world's copy of each heightfield only as tall as its own highest point: the same
+    heights, stored as fractions of that top, which goes into the copy's `hfield_size`. Reaches
+    into MuJoCo Warp's model: world w's copy of the j-th declared heightfield is entry
+    `model.nhfield + j * N + w` (`WarpSimulation._route_terrain`)."""
+    sizes = import_warp()[0].to_torch(sim.m.hfield_size)
+    for j, name in enumerate(names):
+        data = sim.terrain(name)
+        copies = slice(model.nhfield + j * sim.nworld, model.nhfield + (j + 1) * sim.nworld)
+        tops = data.flatten(1).amax(1).clamp_min(1e-6)  # fractions of the compiled top
+        data.copy_(data / tops[:, None, None])
+        sizes[copies, 2] *= tops
 
 
 def main() -> None:

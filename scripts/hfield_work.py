@@ -1,7 +1,8 @@
-"""How much heightfield work each collision thread of 3D Terrain's many-world physics does.
+"""How much heightfield work each collision thread of a many-world physics step does.
 
-    python scripts/hfield_work.py                          # 256 worlds on Warp's CPU device
+    python scripts/hfield_work.py                          # 3D Terrain, 256 worlds
     python scripts/hfield_work.py --worlds 128 --ages 0 40 80 120 160 --tiles 2 1
+    python scripts/hfield_work.py --env stump-tracks --tiles   # another family, no tiles
 
 MuJoCo Warp collides a geom with a heightfield in one thread: it visits every prism under the
 geom's bounding box (a cheap height test each) and runs GJK on those that reach the geom's
@@ -12,12 +13,13 @@ MuJoCo's kinematics on each world's qpos and its own heights):
 
 * raw physics at the ages given (random controls from the placed bodies, no rules, no resets:
   `bench_gpu.py`'s raw physics), then the env's steady state (`ManyWorlds.step`, its rules
-  ending episodes: a quadruped whose hull touches the ground is reset);
+  ending episodes: a quadruped whose hull touches the ground is reset), `--snapshots` states
+  20 steps apart pooled;
 * per collision pair (a body geom against the field, or against one tile of it when the field
   is cut into `--tiles` metres along x, as `bench_terrain3d_collision.py`'s tile variants):
-  the prisms visited (were the field as tall as the compiled one, 10 m, and as it is, each
-  world's copy as tall as its own ground) and those given to GJK: their mean, 99th percentile
-  and maximum; and the heightfield kernel's time on Warp's CPU device.
+  the prisms visited (the field as tall as the compiled one, and were each world's copy only as
+  tall as its own ground) and those given to GJK: their mean, 99th percentile and maximum; and
+  the heightfield kernel's time on Warp's CPU device.
 """
 
 from __future__ import annotations
@@ -30,21 +32,22 @@ import torch
 from bench_gpu import make_env
 from profile_warp_kernels import HFIELD_KERNEL, kernel_times
 
+from acl3d.cli.option_values import key_values
+
 
 def pair_work(env, tile_cols: int | None) -> np.ndarray:
     """(pairs, 3): prisms visited and prisms given to GJK by each (geom, field or tile) pair
     of every world, as `ccd_hfield` bounds them (the geom's box in the field's frame, the prisms
-    with a corner at or above the geom's lowest point), were the field as tall as the compiled
-    one (10 m); then the prisms visited as it is, each field (or tile) only as tall as its own
-    highest point (none where the geom is above it)."""
+    with a corner at or above the geom's lowest point), the field as tall as the compiled one;
+    then the prisms visited were each field (or tile) only as tall as its own highest point
+    (none where the geom is above it)."""
     model, sim = env.template.model, env.sim
     data = mujoco.MjData(model)
     field = model.geom("terrain")
     hfield = model.hfield(field.dataid[0])
-    half_x, half_y = hfield.size[:2]
+    half_x, half_y, top = hfield.size[:3]
     ncol, nrow = int(hfield.ncol[0]), int(hfield.nrow[0])
-    tops = sim.terrain_tops("terrain")[:, None, None]  # metres: each world's own
-    heights = (sim.terrain("terrain") * tops).cpu().numpy()
+    heights = sim.terrain("terrain").cpu().numpy() * top
     qpos = sim.field("qpos").cpu().numpy()
     per_x, per_y = (ncol - 1) / (2 * half_x), (nrow - 1) / (2 * half_y)
     geoms = [
@@ -81,32 +84,47 @@ def pair_work(env, tile_cols: int | None) -> np.ndarray:
 def _box(model, data, g: int, field_pos) -> tuple[np.ndarray, np.ndarray]:
     """Geom g's axis-aligned box in the field's frame (the field is not rotated)."""
     centre, rot = data.geom_xpos[g] - field_pos, data.geom_xmat[g].reshape(3, 3)
-    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE:
+    kind = model.geom_type[g]
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
         radius, half_length = model.geom_size[g][:2]
         extent = np.abs(rot[:, 2]) * half_length + radius
-    else:  # a box around the mesh's (or primitive's) own box
+    elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        extent = np.full(3, model.geom_size[g][0])
+    else:  # a box around the mesh's (or box's) own box
         extent = np.abs(rot) @ model.geom_size[g]
     return centre - extent, centre + extent
 
 
 STATE = ("qpos", "qvel", "qacc_warmstart", "time")
-WORK = ("prisms visited, at the compiled top", "prisms to GJK", "prisms visited, at each own top")
+WORK = ("prisms visited", "prisms to GJK", "prisms visited, were each top its own")
 
 
-def report(label: str, env, tiles: list[float]) -> None:
+def measure(env, tiles: list[float]) -> tuple[float, float, dict]:
+    """(heightfield kernel ms a step, its share of the kernels, {tile length or None: pair
+    work}) of the worlds' present state, which is left as it was."""
     saved = {name: env.sim.field(name).clone() for name in STATE}
     times = kernel_times(env.sim, 2)  # 2 raw steps on from this state, then back to it
     for name, value in saved.items():
         env.sim.field(name).copy_(value)
     hfield = sum(s for name, s in times.items() if HFIELD_KERNEL in name)
-    print(f"{label}: heightfield kernel {1000 * hfield / 2:.1f} ms a step "
-          f"({hfield / sum(times.values()):.0%} of the kernels)")  # fmt: skip
     cell = env.template.arena.grid.cell
-    for tile in [None, *tiles]:
-        work = pair_work(env, None if tile is None else max(1, round(tile / cell)))
+    work = {
+        tile: pair_work(env, None if tile is None else max(1, round(tile / cell)))
+        for tile in [None, *tiles]
+    }
+    return 1000 * hfield / 2, hfield / sum(times.values()), work
+
+
+def report(label: str, env, measures: list[tuple[float, float, dict]]) -> None:
+    """Print `measure`s of one kind of state (several: their mean kernel time, pairs pooled)."""
+    ms, share = np.mean([m[0] for m in measures]), np.mean([m[1] for m in measures])
+    print(f"{label}: heightfield kernel {ms:.1f} ms a step ({share:.0%} of the kernels)")
+    for tile in measures[0][2]:
+        work = np.concatenate([m[2][tile] for m in measures])
+        worlds = env.num_envs * len(measures)
         where = "whole field" if tile is None else f"{tile:g} m tiles"
-        print(f"  {where}: {len(work) / env.num_envs:.1f} pairs a world, "
-              f"GJK {work[:, 1].sum() / env.num_envs:.1f} prisms a world")  # fmt: skip
+        print(f"  {where}: {len(work) / worlds:.1f} pairs a world, "
+              f"GJK {work[:, 1].sum() / worlds:.1f} prisms a world")  # fmt: skip
         for column, what in enumerate(WORK):
             values = work[:, column]
             print(f"    {what:>34}: mean {values.mean():6.1f}  p99 "
@@ -115,27 +133,41 @@ def report(label: str, env, tiles: list[float]) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--env", default="terrain3d", help="stump-tracks, hexagon-tracks, terrain3d")
+    p.add_argument("--body", help="default: big_quadru on terrain3d, else the env's")
+    p.add_argument(
+        "--env-kwarg", action="append", metavar="K=V", default=[],
+        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
+    )  # fmt: skip
     p.add_argument("--worlds", type=int, default=256)
     p.add_argument("--ages", type=int, nargs="+", default=[40, 120], help="raw physics steps")
     p.add_argument("--env-steps", type=int, default=300, help="env steps to its steady state")
+    p.add_argument("--snapshots", type=int, default=5, help="env states measured, 20 steps apart")
     p.add_argument("--tiles", type=float, nargs="*", default=[2.0, 1.0], help="tile lengths, m")
     a = p.parse_args()
-    env = make_env(a.worlds, "cpu", "terrain3d", "big_quadru", 192, 48)
+    body = a.body or ("big_quadru" if a.env == "terrain3d" else None)
+    env_kwargs = key_values(a.env_kwarg, "--env-kwarg")
+    env = make_env(a.worlds, "cpu", a.env, body, 192, 48, env_kwargs)
     ctrl, g = env.sim.field("ctrl"), torch.Generator().manual_seed(1)
-    print(f"3D Terrain, big_quadru, {a.worlds} worlds (bench_gpu.py's task) on Warp's CPU device")
+    options = "".join(f", {k}={v}" for k, v in env_kwargs.items())
+    print(f"{a.env}, {body or 'its default body'}{options}, {a.worlds} worlds (bench_gpu.py's task) on "
+          "Warp's CPU device")  # fmt: skip
     age = 0
     for target in sorted(a.ages):
         for _ in range(target - age):
             ctrl.copy_(torch.rand(ctrl.shape, generator=g) * 2 - 1)
             env.sim.step()
         age = target
-        report(f"raw physics after {age} steps", env, a.tiles)
+        report(f"raw physics after {age} steps", env, [measure(env, a.tiles)])
     env.reset(seed=0)
-    for _ in range(a.env_steps):
+    measures, ages = [], []
+    for step in range(a.env_steps + 20 * (a.snapshots - 1) + 1):
+        if step >= a.env_steps and (step - a.env_steps) % 20 == 0:
+            measures.append(measure(env, a.tiles))
+            ages.append(float(env.elapsed.float().mean()))
         env.step(torch.rand((env.num_envs, env.action_size), generator=g) * 2 - 1)
-    mean_age = float(env.elapsed.float().mean())
-    report(f"env after {a.env_steps} steps (episodes {mean_age:.0f} steps old on average)", env,
-           a.tiles)  # fmt: skip
+    report(f"env, {a.snapshots} states from step {a.env_steps} (episodes {np.mean(ages):.0f} "
+           "steps old on average)", env, measures)  # fmt: skip
 
 
 if __name__ == "__main__":
