@@ -1,6 +1,7 @@
 """Where a many-world physics step's time goes, kernel by kernel (MuJoCo Warp).
 
     python scripts/profile_warp_kernels.py --env terrain3d --body big_quadru
+    python scripts/profile_warp_kernels.py --env-kwarg grid_spacing=[0.2,0.2]   # another grid
     python scripts/profile_warp_kernels.py --device cuda --env terrain3d --body big_quadru \
         --worlds 16384 --constraint-rows 192 --contact-slots 24
 
@@ -29,6 +30,7 @@ import torch
 from bench_gpu import make_env
 from prebuild_warp_kernels import launches_through
 
+from acl3d.cli.option_values import key_values
 from acl3d.sim.warp_backend import import_warp
 
 HFIELD_KERNEL = "ccd_hfield"  # MuJoCo Warp's heightfield-against-convex collision kernels
@@ -92,6 +94,10 @@ def main() -> None:
         "--env", default="terrain3d", help="stump-tracks, hexagon-tracks, parkour, terrain3d"
     )
     p.add_argument("--body", help="default: the env's")
+    p.add_argument(
+        "--env-kwarg", action="append", metavar="K=V", default=[],
+        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
+    )  # fmt: skip
     p.add_argument("--worlds", type=int, default=1024)
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--warmup", type=int, default=40)
@@ -99,9 +105,11 @@ def main() -> None:
     p.add_argument("--contact-slots", type=int, default=0, help="0: MuJoCo Warp's estimate")
     p.add_argument("--top", type=int, default=15, help="kernels listed")
     a = p.parse_args()
+    env_kwargs = key_values(a.env_kwarg, "--env-kwarg")
     env = make_env(
-        a.worlds, a.device, a.env, a.body, a.constraint_rows or None, a.contact_slots or None
-    )
+        a.worlds, a.device, a.env, a.body, a.constraint_rows or None, a.contact_slots or None,
+        env_kwargs,
+    )  # fmt: skip
     kernel_times(env.sim, a.warmup)  # loads every kernel module; the bodies fold to the ground
     times = kernel_times(env.sim, a.steps)
     by_name: dict[str, float] = defaultdict(float)
@@ -109,8 +117,9 @@ def main() -> None:
         by_name[short_name(name)] += seconds
     total = sum(by_name.values())
     hfield = sum(s for n, s in by_name.items() if HFIELD_KERNEL in n)
+    options = "".join(f", {k}={v}" for k, v in env_kwargs.items())
     print(
-        f"{a.env}, {a.body or 'its default body'}, {a.worlds} worlds on {a.device}, "
+        f"{a.env}, {a.body or 'its default body'}{options}, {a.worlds} worlds on {a.device}, "
         f"{env.sim.constraint_rows} constraint rows and {env.sim.contact_slots} contact slots "
         f"a world, {a.steps} steps of {env.sim.nstep} substeps"
     )
