@@ -38,7 +38,7 @@ from acl3d.cli.option_values import key_values
 def pair_work(env, tile_cols: int | None) -> np.ndarray:
     """(pairs, 3): prisms visited and prisms given to GJK by each (geom, field or tile) pair
     of every world, as `ccd_hfield` bounds them (the geom's box in the field's frame, the prisms
-    with a corner at or above the geom's lowest point), the field as tall as the compiled one;
+    with a top point at or above the geom's lowest point), the field as tall as the compiled one;
     then the prisms visited were each field (or tile) only as tall as its own highest point
     (none where the geom is above it)."""
     model, sim = env.template.model, env.sim
@@ -70,7 +70,7 @@ def pair_work(env, tile_cols: int | None) -> np.ndarray:
             if rmax <= rmin or cmax <= cmin:
                 continue
             up = heights[w, rmin : rmax + 1, cmin : cmax + 1] >= lo[2]
-            reaching = (up[:-1, :-1] | up[1:, :-1] | up[:-1, 1:] | up[1:, 1:]).sum(0) * 2
+            reaching = _reaching(up)
             tiles = np.arange(cmin, cmax) // (tile_cols or ncol)
             for t in np.unique(tiles):
                 on = tiles == t
@@ -81,16 +81,33 @@ def pair_work(env, tile_cols: int | None) -> np.ndarray:
     return np.array(work)
 
 
+def _reaching(up: np.ndarray) -> np.ndarray:
+    """Prisms given to GJK in each column of cells of a subgrid, from `up` (rows + 1, columns +
+    1: the points at or above the geom's lowest point): `ccd_hfield` splits the cell between
+    columns j and j + 1 of rows r and r + 1 into the triangles {(r+1, j), (r, j), (r+1, j+1)}
+    and {(r, j), (r+1, j+1), (r, j+1)}, and skips a prism when its triangle's three points are
+    all below."""
+    first = up[1:, :-1] | up[:-1, :-1] | up[1:, 1:]
+    second = up[:-1, :-1] | up[1:, 1:] | up[:-1, 1:]
+    return first.sum(0) + second.sum(0)
+
+
 def _box(model, data, g: int, field_pos) -> tuple[np.ndarray, np.ndarray]:
-    """Geom g's axis-aligned box in the field's frame (the field is not rotated)."""
+    """Geom g's axis-aligned box in the field's frame (the field is not rotated), from its
+    extreme points as MuJoCo Warp's support functions give them."""
     centre, rot = data.geom_xpos[g] - field_pos, data.geom_xmat[g].reshape(3, 3)
     kind = model.geom_type[g]
+    if kind == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh = model.geom_dataid[g]
+        start = model.mesh_vertadr[mesh]
+        points = model.mesh_vert[start : start + model.mesh_vertnum[mesh]] @ rot.T
+        return centre + points.min(0), centre + points.max(0)
     if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
         radius, half_length = model.geom_size[g][:2]
         extent = np.abs(rot[:, 2]) * half_length + radius
     elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
         extent = np.full(3, model.geom_size[g][0])
-    else:  # a box around the mesh's (or box's) own box
+    else:  # a box (other primitives: the box around them)
         extent = np.abs(rot) @ model.geom_size[g]
     return centre - extent, centre + extent
 
