@@ -66,6 +66,16 @@ def make_env(
     return env
 
 
+def add_env_arguments(p: argparse.ArgumentParser, env: str, body: str = "the env's") -> None:
+    """--env (default `env`), --body (default described by `body`) and --env-kwarg K=V."""
+    p.add_argument("--env", default=env, help="stump-tracks, hexagon-tracks, parkour, terrain3d")
+    p.add_argument("--body", help=f"default: {body}")
+    p.add_argument(
+        "--env-kwarg", action="append", metavar="K=V", default=[],
+        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
+    )  # fmt: skip
+
+
 def raw_rate(sim, steps: int, warmup: int) -> float:
     """Env steps/s of `sim` (a `WarpSimulation`) alone: random controls, no rules or resets."""
     g = torch.Generator(device=sim.device).manual_seed(1)
@@ -143,14 +153,7 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096, 16384])
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--warmup", type=int, default=20)
-    p.add_argument(
-        "--env", default="stump-tracks", help="stump-tracks, hexagon-tracks, parkour, terrain3d"
-    )
-    p.add_argument("--body", help="default: the env's")
-    p.add_argument(
-        "--env-kwarg", action="append", metavar="K=V", default=[],
-        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
-    )  # fmt: skip
+    add_env_arguments(p, "stump-tracks")
     p.add_argument(
         "--constraint-rows", type=int, nargs="+", default=[0], metavar="ROWS",
         help="constraint rows reserved per world, each measured in turn (0: MuJoCo Warp's estimate)",

@@ -29,7 +29,7 @@ import argparse
 import mujoco
 import numpy as np
 import torch
-from bench_gpu import make_env
+from bench_gpu import add_env_arguments, make_env
 from profile_warp_kernels import HFIELD_KERNEL, kernel_times
 
 from acl3d.cli.option_values import key_values
@@ -150,12 +150,7 @@ def report(label: str, env, measures: list[tuple[float, float, dict]]) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="terrain3d", help="stump-tracks, hexagon-tracks, terrain3d")
-    p.add_argument("--body", help="default: big_quadru on terrain3d, else the env's")
-    p.add_argument(
-        "--env-kwarg", action="append", metavar="K=V", default=[],
-        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
-    )  # fmt: skip
+    add_env_arguments(p, "terrain3d", "big_quadru on terrain3d, else the env's")
     p.add_argument("--worlds", type=int, default=256)
     p.add_argument("--ages", type=int, nargs="+", default=[40, 120], help="raw physics steps")
     p.add_argument("--env-steps", type=int, default=300, help="env steps to its steady state")

@@ -27,7 +27,7 @@ import time
 from collections import defaultdict
 
 import torch
-from bench_gpu import make_env
+from bench_gpu import add_env_arguments, make_env
 from prebuild_warp_kernels import launches_through
 
 from acl3d.cli.option_values import key_values
@@ -90,14 +90,7 @@ def short_name(name: str) -> str:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cpu")
-    p.add_argument(
-        "--env", default="terrain3d", help="stump-tracks, hexagon-tracks, parkour, terrain3d"
-    )
-    p.add_argument("--body", help="default: the env's")
-    p.add_argument(
-        "--env-kwarg", action="append", metavar="K=V", default=[],
-        help="an env keyword argument, its value in YAML (repeatable), e.g. grid_spacing=[0.2,0.2]",
-    )  # fmt: skip
+    add_env_arguments(p, "terrain3d")
     p.add_argument("--worlds", type=int, default=1024)
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--warmup", type=int, default=40)
