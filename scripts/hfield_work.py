@@ -50,6 +50,7 @@ def pair_work(env, tile_cols: int | None) -> np.ndarray:
     heights = sim.terrain("terrain").cpu().numpy() * top
     qpos = sim.field("qpos").cpu().numpy()
     per_x, per_y = (ncol - 1) / (2 * half_x), (nrow - 1) / (2 * half_y)
+    per_tile = tile_cols or ncol  # columns of cells a tile (the whole field: one tile)
     geoms = [
         g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and model.geom_conaffinity[g]
     ]
@@ -71,11 +72,11 @@ def pair_work(env, tile_cols: int | None) -> np.ndarray:
                 continue
             up = heights[w, rmin : rmax + 1, cmin : cmax + 1] >= lo[2]
             reaching = _reaching(up)
-            tiles = np.arange(cmin, cmax) // (tile_cols or ncol)
+            tiles = np.arange(cmin, cmax) // per_tile
             for t in np.unique(tiles):
                 on = tiles == t
                 visited = int(on.sum()) * (rmax - rmin) * 2
-                span = slice(t * (tile_cols or ncol), (t + 1) * (tile_cols or ncol) + 1)
+                span = slice(t * per_tile, (t + 1) * per_tile + 1)
                 below = heights[w, :, span].max() < lo[2]
                 work.append((visited, int(reaching[on].sum()), 0 if below else visited))
     return np.array(work)
