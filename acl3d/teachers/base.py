@@ -198,8 +198,9 @@ class Teacher(ABC):
             self._record_initial_state(task, np.asarray(state, dtype=np.float32))
 
     def set_value_estimator(self, fn: ValueEstimator, episodes: EpisodeValues | None = None):
-        """The student's value function (a batch of states -> values) and `episodes`, each
-        episode's values as `fn` gives them in one call (one trip to a GPU; default: `fn`)."""
+        """The student's value function (a batch of states -> values) and `episodes`, the
+        values of a list of episodes' states in one call (one trip to a GPU; default: `fn` on
+        each episode)."""
         self.value_estimator = fn
         self.episode_values = self._each_episode if episodes is None else episodes
 
