@@ -9,8 +9,9 @@ synthetic stream: stump-tracks' task space, observations of `--obs` dimensions, 
 at random (mean `--mean-episode` steps) or at the time limit. The critic is a fixed linear map
 (the student's forward pass is the student's cost). After `--warmup` steps (episodes of every
 length running), `--steps` steps are timed; printed: the teacher's milliseconds a step, the
-episodes and tasks a step, and the process's peak memory (of every teacher it ran so far: time
-one teacher to read its own).
+episodes and tasks a step, the process's peak memory (of every teacher it ran so far: time
+one teacher to read its own), and then the time to write the teacher's state as a checkpoint
+does and to read it back into a new teacher, with the files' size.
 
     python scripts/bench_step_teachers.py [--worlds 4096] [--teachers robust-plr self-paced]
     python scripts/bench_step_teachers.py --against /tmp/acl3d-old --rounds 3
@@ -93,7 +94,31 @@ def measure(args) -> dict:
             timed[k] / args.steps for k in ("episodes", "tasks")
         ]
         out[teacher].append(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20)
+        out[teacher].extend(checkpoint_times(controller, teacher, space, profile, config))
     return out
+
+
+def checkpoint_times(controller, teacher, space, profile, config) -> list[float]:
+    """[seconds to write the controller's state, seconds to read it into a new controller,
+    megabytes written], as a run's checkpoint and resume do, running episodes included."""
+    import tempfile
+    import time
+
+    from acl3d.teachers.controller import TeacherController
+    from acl3d.teachers.state_files import load_state, save_state
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "controller"
+        start = time.perf_counter()
+        save_state(path, controller.state_dict())
+        saved = time.perf_counter()
+        fresh = TeacherController(
+            teacher, space, 0, profile=profile, expert_knowledge="low", total_steps=config.steps
+        )
+        fresh.load_state_dict(load_state(path))
+        loaded = time.perf_counter()
+        size = sum(p.stat().st_size for p in Path(folder).iterdir()) / 2**20
+    return [saved - start, loaded - saved, size]
 
 
 def in_tree(tree: Path, argv: list[str]) -> dict:
@@ -136,7 +161,9 @@ def main() -> None:
         line = (
             f"  {teacher:12s} teacher {statistics.median(m[0] for m in mine):6.2f} ms a step "
             f"({mine[0][1]:.1f} episodes, {mine[0][2]:.1f} tasks a step; "
-            f"process peak {mine[0][3]:.2f} GB)"
+            f"process peak {mine[0][3]:.2f} GB); checkpoint: written in "
+            f"{statistics.median(m[4] for m in mine):.2f} s, read in "
+            f"{statistics.median(m[5] for m in mine):.2f} s, {mine[0][6]:.0f} MB"
         )
         if there:
             ratios = [
@@ -145,7 +172,10 @@ def main() -> None:
             old = statistics.median(o[teacher][0] for o in results["other"])
             peak = results["other"][0][teacher][3]
             line += f"; {there}: {old:.2f} ms, peak {peak:.2f} GB, old / new "
-            line += f"{statistics.median(ratios):.2f}x"
+            line += f"{statistics.median(ratios):.2f}x; its checkpoint: written in "
+            line += f"{statistics.median(o[teacher][4] for o in results['other']):.2f} s, "
+            line += f"read in {statistics.median(o[teacher][5] for o in results['other']):.2f} s, "
+            line += f"{results['other'][0][teacher][6]:.0f} MB"
         print(line, flush=True)
 
 

@@ -272,3 +272,45 @@ def test_running_episodes_kept_in_pages_come_back_whole():
         in_use = (traces.pages >= 0).sum()
         assert in_use == sum(-(-len(steps) // page) for steps in reference.values())
     assert max(len(steps) for steps in reference.values()) > 3 * page
+
+
+def test_running_episodes_of_an_older_checkpoint_load_as_written():
+    """A checkpoint written before the flat form ({stream: [states, rewards]}) loads to the
+    same running episodes as the flat form."""
+    from acl3d.teachers.step_streams import StepTraces
+
+    rng = np.random.default_rng(1)
+    traces = StepTraces()
+    for _ in range(150):
+        streams = rng.permutation(30)[: rng.integers(1, 30)]
+        states = rng.normal(size=(len(streams), 5)).astype(np.float32)
+        traces.add(streams, states, rng.normal(size=len(streams)), rng.random(len(streams)) < 0.02)
+    flat = traces.state()
+    bounds = np.cumsum(flat["lengths"])[:-1]
+    older = {
+        str(s): [states, rewards.tolist()]
+        for s, states, rewards in zip(
+            flat["streams"].tolist(),
+            np.split(flat["states"], bounds),
+            np.split(flat["rewards"], bounds),
+        )
+    }
+    loaded = StepTraces()
+    loaded.load_state(StepTraces.flat(older))
+    again = loaded.state()
+    assert again.keys() == flat.keys()
+    for key, value in flat.items():
+        np.testing.assert_array_equal(again[key], value)
+        assert again[key].dtype == value.dtype
+    everyone = flat["streams"]
+    ones = np.ones(len(everyone), dtype=bool)
+    for (a_states, a_rewards), (b_states, b_rewards) in zip(
+        traces.add(
+            everyone, np.zeros((len(everyone), 5), np.float32), np.zeros(len(everyone)), ones
+        ),
+        loaded.add(
+            everyone, np.zeros((len(everyone), 5), np.float32), np.zeros(len(everyone)), ones
+        ),
+    ):
+        np.testing.assert_array_equal(a_states, b_states)
+        np.testing.assert_array_equal(a_rewards, b_rewards)

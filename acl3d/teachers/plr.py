@@ -286,7 +286,7 @@ class RobustPLR(Teacher):
             **{k: getattr(self, k).copy() for k in self._ARRAYS},
             "pending": [[t, kind, index] for t, (kind, index) in self._pending.items()],
             "edits": [t.copy() for t in self._edits],
-            "streams": self._traces.state(),
+            "traces": self._traces.state(),
             "finished": [[s, r] for s, r in self._finished],
             "mean_return": self._mean_return,
         }
@@ -300,7 +300,10 @@ class RobustPLR(Teacher):
         self._edits = deque(
             np.asarray(t, dtype=np.float64).reshape(self.dim) for t in extra["edits"]
         )
-        self._traces.load_state(extra["streams"])
+        traces = extra.get("traces")
+        if traces is None:  # a checkpoint written before the flat form
+            traces = StepTraces.flat(extra["streams"])
+        self._traces.load_state(traces)
         self._finished = deque(
             (np.asarray(s), np.asarray(r, dtype=np.float64)) for s, r in extra["finished"]
         )

@@ -93,14 +93,21 @@ class StepTraces:
     def _write(self, slots: np.ndarray, states: np.ndarray, rewards) -> None:
         """Steps into the pool's slots (page x PAGE + step in the page): one index per row is
         numpy's fast path, ~2.5x faster than a (page, step) pair."""
-        self.states.reshape(-1, self.states.shape[2])[slots] = states
+        self._steps()[slots] = states
         self.rewards.reshape(-1)[slots] = rewards
+
+    def _steps(self) -> np.ndarray:
+        """The pool as one row a step (a view; its shape spelt out: a pool of 0-dimensional
+        states has no size to infer it from)."""
+        return self.states.reshape(len(self.states) * self.PAGE, self.states.shape[2])
 
     def _episode(self, stream: int) -> tuple[np.ndarray, np.ndarray]:
         n = int(self.lengths[stream])
         pages = self.pages[stream, : -(-n // self.PAGE)]
         d = self.states.shape[2]
-        return self.states[pages].reshape(-1, d)[:n], self.rewards[pages].reshape(-1)[:n]
+        return self.states[pages].reshape(len(pages) * self.PAGE, d)[:n], self.rewards[
+            pages
+        ].reshape(-1)[:n]
 
     def _release(self, streams: np.ndarray) -> None:
         """The streams' episodes forgotten, their pages back in the pool."""
@@ -158,28 +165,63 @@ class StepTraces:
         )
         return taken
 
-    def state(self) -> dict:
-        out = {}
-        for s in np.flatnonzero(self.lengths).tolist():
-            states, rewards = self._episode(s)
-            out[str(s)] = [states, rewards.tolist()]
-        return out
+    def _slots(self, streams: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        """The pool slots of every step of `streams`' running episodes (`lengths` steps each),
+        stream after stream, each episode's steps in order."""
+        owners = np.repeat(streams, lengths)
+        steps = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        return self.pages[owners, steps // self.PAGE] * self.PAGE + steps % self.PAGE
 
-    def load_state(self, streams: dict) -> None:
+    def state(self) -> dict:
+        """The running episodes as four flat arrays (a checkpoint writes four arrays, not one
+        per stream): `streams` and their `lengths`, then every step's `states` and `rewards`,
+        stream after stream."""
+        streams = np.flatnonzero(self.lengths)
+        lengths = self.lengths[streams]
+        slots = self._slots(streams, lengths)
+        return {
+            "streams": streams,
+            "lengths": lengths,
+            "states": self._steps()[slots],
+            "rewards": self.rewards.reshape(-1)[slots],
+        }
+
+    @staticmethod
+    def flat(streams: dict) -> dict:
+        """`state()`'s form of the {stream: [states, rewards]} dict that checkpoints written
+        before it hold."""
+        keys = sorted(streams, key=int)
+        rewards = [np.asarray(streams[k][1], dtype=np.float64).reshape(-1) for k in keys]
+        states = [np.asarray(streams[k][0]).reshape(len(r), -1) for k, r in zip(keys, rewards)]
+        return {
+            "streams": np.array([int(k) for k in keys], dtype=np.int64),
+            "lengths": np.array([len(r) for r in rewards], dtype=np.int64),
+            "states": np.concatenate(states) if states else np.zeros((0, 0), np.float32),
+            "rewards": np.concatenate(rewards) if rewards else np.zeros(0),
+        }
+
+    def load_state(self, state: dict) -> None:
+        """Continue from `state()`: each running episode in pages of its own, the pool exactly
+        as large as they need."""
         self.__init__()
-        for key, (states, rewards) in streams.items():
-            n, stream = len(rewards), np.array([int(key)])
-            states = np.asarray(states)
-            states = states.astype(np.float32 if states.dtype == np.float32 else np.float64)
-            states = states.reshape(n, -1)
-            self._fit(stream, states, n)
-            steps = np.arange(n)
-            self._write(
-                self.pages[stream[0], steps // self.PAGE] * self.PAGE + steps % self.PAGE,
-                states,
-                rewards,
-            )
-            self.lengths[stream[0]] = n
+        streams = np.asarray(state["streams"], dtype=np.int64).reshape(-1)
+        lengths = np.asarray(state["lengths"], dtype=np.int64).reshape(-1)
+        if not len(streams):
+            return
+        states = np.asarray(state["states"])
+        states = states.astype(np.float32 if states.dtype == np.float32 else np.float64)
+        counts = -(-lengths // self.PAGE)
+        total = int(counts.sum())
+        self.lengths = np.zeros(int(streams.max()) + 1, dtype=np.int64)
+        self.pages = np.full((len(self.lengths), int(counts.max())), -1, dtype=np.int64)
+        owners = np.repeat(streams, counts)
+        self.pages[owners, np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)] = (
+            np.arange(total)
+        )
+        self.states = np.zeros((total, self.PAGE, states.shape[1]), dtype=states.dtype)
+        self.rewards = np.zeros((total, self.PAGE), dtype=np.float64)
+        self.lengths[streams] = lengths
+        self._write(self._slots(streams, lengths), states, state["rewards"])
 
 
 class DiscountedReturns:
