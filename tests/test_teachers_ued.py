@@ -263,3 +263,57 @@ def test_resume_with_episodes_in_flight_is_exact(name, tmp_path):
         t.episodic_update(pending, 2.0)
     np.testing.assert_array_equal(run(restored, 15), run(teacher, 15))
     assert restored.bk["scores"] == teacher.bk["scores"]
+
+
+def _older_form(extra: dict) -> dict:
+    """A teacher's extra state as checkpoints wrote it before proposals, edits and running
+    episodes were kept as columns: a list entry per proposal, an array per edit, a dict entry
+    per stream."""
+    older = dict(extra)
+    columns = older.pop("proposals")
+    fields = [columns[k].tolist() for k in columns if k != "tasks"]
+    older["pending"] = [[t, *row] for t, row in zip(columns["tasks"], zip(*fields))]
+    if "edits" in older:
+        older["edits"] = list(older["edits"])
+    if "traces" in older:
+        traces = older.pop("traces")
+        bounds = np.cumsum(traces["lengths"])[:-1]
+        parts = zip(np.split(traces["states"], bounds), np.split(traces["rewards"], bounds))
+        older["streams"] = {
+            str(s): [states, rewards.tolist()]
+            for s, (states, rewards) in zip(traces["streams"].tolist(), parts)
+        }
+    return older
+
+
+@pytest.mark.parametrize("name", ["robust-plr", "accel", "terrain-levels"])
+def test_a_checkpoint_of_the_older_form_resumes_as_the_current_one(name, tmp_path):
+    """Proposals in flight, a running episode and (ACCEL) edits, saved in the older form: the
+    teacher loaded from it continues as the one loaded from the current form."""
+    params = {"nb_workers": 4} if name == "terrain-levels" else {"buffer_size": 12}
+    teacher = make(name, SPACE, seed=8, **params)
+    teacher.set_value_estimator(lambda states: np.asarray(states)[:, 0] * 0.3)
+    for k in range(30):
+        task = teacher.sample_task()
+        teacher.step_update(task, [0.0], float(task[0]), task, True, stream=k % 4)
+        teacher.episodic_update(task, float(task[0]))
+    tasks = [teacher.sample_task() for _ in range(10)]  # in flight, replays among them
+    teacher.step_update(tasks[0], [0.0], 1.0, tasks[0], False, stream=5)  # mid-episode
+    state = teacher.state_dict()
+    assert len(state["extra"]["proposals"]["tasks"]) >= 9
+    older = dict(state, extra=_older_form(state["extra"]))
+    copies = []
+    for form in (state, older):
+        copy = make(name, SPACE, seed=0, **params)
+        copy.set_value_estimator(lambda states: np.asarray(states)[:, 0] * 0.3)
+        copy.load_state_dict(form)
+        copies.append(copy)
+    for copy in copies:
+        for task in tasks:
+            copy.step_update(task, [0.0], 2.0, task, True, stream=5)
+            copy.episodic_update(task, 2.0)
+    current, loaded_older = copies
+    np.testing.assert_array_equal(
+        [loaded_older.sample_task() for _ in range(10)], [current.sample_task() for _ in range(10)]
+    )
+    assert loaded_older.bk == current.bk

@@ -108,6 +108,21 @@ class PendingTasks:
         """[(task, payload)], oldest first (for checkpoints)."""
         return [(task.copy(), payload) for task, payload in self._entries.values()]
 
+    def columns(self, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """The proposals as arrays, oldest first (a checkpoint writes a few arrays, not one a
+        proposal): `tasks` (M, dim), then one column per name of the payloads' integer fields
+        (a payload is a tuple of them, or one integer when there is one name)."""
+        items = list(self._entries.values())
+        tasks = np.array([t for t, _ in items], dtype=np.float64).reshape(len(items), self.dim)
+        fields = np.array([p for _, p in items], dtype=np.int64).reshape(len(items), len(names))
+        return {"tasks": tasks, **{name: fields[:, k] for k, name in enumerate(names)}}
+
+    def load_columns(self, columns: dict, names: tuple[str, ...]) -> None:
+        """Replace the proposals with `columns(names)`'s."""
+        fields = [np.asarray(columns[name], dtype=np.int64).tolist() for name in names]
+        payloads = zip(*fields) if len(names) > 1 else fields[0]
+        self.load(zip(np.asarray(columns["tasks"]).reshape(-1, self.dim), payloads))
+
     def load(self, items) -> None:
         """Replace the proposals with [(task, payload)], oldest first."""
         self._entries.clear()

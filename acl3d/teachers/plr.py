@@ -284,8 +284,8 @@ class RobustPLR(Teacher):
     def _extra_state(self) -> dict[str, Any]:
         return {
             **{k: getattr(self, k).copy() for k in self._ARRAYS},
-            "pending": [[t, kind, index] for t, (kind, index) in self._pending.items()],
-            "edits": [t.copy() for t in self._edits],
+            "proposals": self._pending.columns(("kinds", "levels")),
+            "edits": np.array(self._edits, dtype=np.float64).reshape(-1, self.dim),
             "traces": self._traces.state(),
             "finished": [[s, r] for s, r in self._finished],
             "mean_return": self._mean_return,
@@ -296,10 +296,12 @@ class RobustPLR(Teacher):
         for key in self._ARRAYS[1:]:
             dtype = np.int64 if key in ("last_played", "plays") else np.float64
             setattr(self, key, np.asarray(extra[key], dtype=dtype).reshape(-1))
-        self._pending.load((t, (int(k), int(i))) for t, k, i in extra["pending"])
-        self._edits = deque(
-            np.asarray(t, dtype=np.float64).reshape(self.dim) for t in extra["edits"]
-        )
+        proposals = extra.get("proposals")
+        if proposals is None:  # a checkpoint written before proposals were kept as columns
+            self._pending.load((t, (int(k), int(i))) for t, k, i in extra["pending"])
+        else:
+            self._pending.load_columns(proposals, ("kinds", "levels"))
+        self._edits = deque(np.asarray(extra["edits"], dtype=np.float64).reshape(-1, self.dim))
         traces = extra.get("traces")
         if traces is None:  # a checkpoint written before the flat form
             traces = StepTraces.flat(extra["streams"])

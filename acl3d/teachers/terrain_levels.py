@@ -168,10 +168,14 @@ class TerrainLevels(Teacher):
         return {
             "levels": self.levels.copy(),
             "turn": self._turn,
-            "pending": [[t, r] for t, r in self._pending.items()],
+            "proposals": self._pending.columns(("robots",)),
         }
 
     def _load_extra_state(self, extra: dict[str, Any]) -> None:
         self.levels = np.asarray(extra["levels"], dtype=np.int64).reshape(self.nb_workers)
         self._turn = int(extra["turn"])
-        self._pending.load((t, int(r)) for t, r in extra["pending"])
+        proposals = extra.get("proposals")
+        if proposals is None:  # a checkpoint written before proposals were kept as columns
+            self._pending.load((t, int(r)) for t, r in extra["pending"])
+        else:
+            self._pending.load_columns(proposals, ("robots",))
