@@ -11,6 +11,7 @@ from acl3d.teachers import make
 from acl3d.teachers.goal_gan import GoalGAN
 from acl3d.teachers.self_paced import SelfPaced
 from acl3d.teachers.setter_solver import SetterSolver
+from acl3d.teachers.state_files import save_state
 
 torch.set_num_threads(1)
 
@@ -92,6 +93,38 @@ def test_save_load_resumes_exactly(name, tmp_path):
             np.asarray(resumed.dump()[key], dtype=float),
             err_msg=key,
         )
+
+
+def test_setter_solver_checkpoint_of_the_older_form_resumes_as_the_current_one(tmp_path):
+    """Proposals in flight and outcomes awaiting the next update, saved as the entries older
+    checkpoints hold ({task, goal, f} a proposal, {goal, f, success} an outcome): the teacher
+    loaded from them continues as the one loaded from the current columns."""
+    teacher = make("setter-solver", SPACES["2d"], seed=11, **FAST["setter-solver"])
+    drive(teacher, 23)
+    waiting = [teacher.sample_task() for _ in range(4)]
+    state = teacher.state_dict()
+    extra = dict(state["extra"])
+    proposals, outcomes = extra.pop("proposals"), extra.pop("outcomes")
+    assert len(proposals["tasks"]) == 4 and len(outcomes["f"]) == 3
+    extra["pending"] = [
+        {"task": t, "goal": g, "f": float(f)}
+        for t, g, f in zip(proposals["tasks"], proposals["goals"], proposals["f"])
+    ]
+    extra["buffer"] = [
+        {"goal": g, "f": float(f), "success": float(v)}
+        for g, f, v in zip(outcomes["goals"], outcomes["f"], outcomes["success"])
+    ]
+    # written to files first, as checkpoints are: the state shares the teacher's tensors
+    save_state(tmp_path / "current", state)
+    save_state(tmp_path / "older", dict(state, extra=extra))
+    played = []
+    for form in ("current", "older"):
+        copy = make("setter-solver", SPACES["2d"], seed=0, **FAST["setter-solver"])
+        copy.load(tmp_path / form)
+        for k, task in enumerate(waiting):
+            copy.episodic_update(task, float(task.sum()), k % 2 == 0)
+        played.append(drive(copy, 20))
+    np.testing.assert_array_equal(played[0], played[1])
 
 
 @pytest.mark.parametrize("name", list(FAST))

@@ -278,17 +278,24 @@ class SetterSolver(TorchDrawsTeacher):
 
     # ------------------------------------------------------------------ checkpointing
     def _extra_state(self) -> dict[str, Any]:
+        pending = self._pending.items()
         return {
             "setter": module_state(self.setter),
             "judge": module_state(self.judge),
             "setter_opt": optimizer_state(self.setter_opt),
             "judge_opt": optimizer_state(self.judge_opt),
             "torch_rng": generator_state(self.gen),
-            "pending": [
-                {"task": t.astype(np.float32), "goal": g.copy(), "f": f}
-                for t, (g, f) in self._pending.items()
-            ],
-            "buffer": [{"goal": g.copy(), "f": f, "success": s} for g, f, s in self._buffer],
+            # columns, not an entry a proposal: thousands wait at once on many worlds
+            "proposals": {
+                "tasks": np.array([t for t, _ in pending], np.float32).reshape(-1, self.dim),
+                "goals": _rows([g for _, (g, _) in pending]),
+                "f": np.array([f for _, (_, f) in pending], dtype=np.float64),
+            },
+            "outcomes": {
+                "goals": _rows([g for g, _, _ in self._buffer]),
+                "f": np.array([f for _, f, _ in self._buffer], dtype=np.float64),
+                "success": np.array([s for _, _, s in self._buffer], dtype=np.float64),
+            },
         }
 
     def _load_extra_state(self, extra: dict[str, Any]) -> None:
@@ -297,14 +304,32 @@ class SetterSolver(TorchDrawsTeacher):
         load_optimizer_state(self.setter_opt, extra["setter_opt"])
         load_optimizer_state(self.judge_opt, extra["judge_opt"])
         load_generator_state(self.gen, extra["torch_rng"])
+        proposals, outcomes = extra.get("proposals"), extra.get("outcomes")
+        if proposals is None:  # a checkpoint written before: an entry a proposal and an outcome
+            pending, buffer = extra["pending"], extra["buffer"]
+            proposals = {
+                "tasks": np.array([p["task"] for p in pending], np.float32),
+                "goals": _rows([np.ravel(p["goal"]) for p in pending]),
+                "f": np.array([float(p["f"]) for p in pending]),
+            }
+            outcomes = {
+                "goals": _rows([np.ravel(b["goal"]) for b in buffer]),
+                "f": np.array([float(b["f"]) for b in buffer]),
+                "success": np.array([float(b["success"]) for b in buffer]),
+            }
+        tasks = np.asarray(proposals["tasks"], dtype=np.float32).reshape(-1, self.dim)
         self._pending.load(
-            (
-                np.asarray(p["task"], dtype=np.float32),
-                (np.asarray(p["goal"], dtype=np.float64), float(p["f"])),
-            )
-            for p in extra["pending"]
+            (task, (np.array(goal, dtype=np.float64), f))
+            for task, goal, f in zip(tasks, proposals["goals"], proposals["f"].tolist())
         )
         self._buffer = [
-            (np.asarray(b["goal"], dtype=np.float64), float(b["f"]), float(b["success"]))
-            for b in extra["buffer"]
+            (np.array(goal, dtype=np.float64), f, success)
+            for goal, f, success in zip(
+                outcomes["goals"], outcomes["f"].tolist(), outcomes["success"].tolist()
+            )
         ]
+
+
+def _rows(vectors: list) -> np.ndarray:
+    """Equal-length vectors as the rows of one float64 array ((0, 0) for none)."""
+    return np.array(vectors, dtype=np.float64) if vectors else np.zeros((0, 0))
