@@ -42,6 +42,11 @@ def check_states(states, n: int) -> np.ndarray:
     return arr.reshape(n, -1)
 
 
+def _ranks(counts: np.ndarray) -> np.ndarray:
+    """0 .. counts[i] - 1 for each i in turn, concatenated (each item's place in its group)."""
+    return np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
 def _grown(array: np.ndarray, rows: int, columns: int | None = None) -> np.ndarray:
     """`array` zero-padded to at least `rows` (and `columns` along axis 1), doubling."""
     shape = list(array.shape)
@@ -104,10 +109,11 @@ class StepTraces:
     def _episode(self, stream: int) -> tuple[np.ndarray, np.ndarray]:
         n = int(self.lengths[stream])
         pages = self.pages[stream, : -(-n // self.PAGE)]
-        d = self.states.shape[2]
-        return self.states[pages].reshape(len(pages) * self.PAGE, d)[:n], self.rewards[
-            pages
-        ].reshape(-1)[:n]
+        rows = len(pages) * self.PAGE
+        return (
+            self.states[pages].reshape(rows, self.states.shape[2])[:n],
+            self.rewards[pages].reshape(rows)[:n],
+        )
 
     def _release(self, streams: np.ndarray) -> None:
         """The streams' episodes forgotten, their pages back in the pool."""
@@ -144,8 +150,7 @@ class StepTraces:
         counts = np.maximum(last - start + 1, 0)
         if counts.any():
             owners = np.repeat(streams, counts)
-            offsets = np.cumsum(counts) - counts  # where each stream's new pages start
-            columns = np.repeat(start - offsets, counts) + np.arange(counts.sum())
+            columns = np.repeat(start, counts) + _ranks(counts)
             self.pages[owners, columns] = self._take(int(counts.sum()))
         return at
 
@@ -168,8 +173,7 @@ class StepTraces:
     def _slots(self, streams: np.ndarray, lengths: np.ndarray) -> np.ndarray:
         """The pool slots of every step of `streams`' running episodes (`lengths` steps each),
         stream after stream, each episode's steps in order."""
-        owners = np.repeat(streams, lengths)
-        steps = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        owners, steps = np.repeat(streams, lengths), _ranks(lengths)
         return self.pages[owners, steps // self.PAGE] * self.PAGE + steps % self.PAGE
 
     def state(self) -> dict:
@@ -214,10 +218,7 @@ class StepTraces:
         total = int(counts.sum())
         self.lengths = np.zeros(int(streams.max()) + 1, dtype=np.int64)
         self.pages = np.full((len(self.lengths), int(counts.max())), -1, dtype=np.int64)
-        owners = np.repeat(streams, counts)
-        self.pages[owners, np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)] = (
-            np.arange(total)
-        )
+        self.pages[np.repeat(streams, counts), _ranks(counts)] = np.arange(total)
         self.states = np.zeros((total, self.PAGE, states.shape[1]), dtype=states.dtype)
         self.rewards = np.zeros((total, self.PAGE), dtype=np.float64)
         self.lengths[streams] = lengths
