@@ -131,6 +131,19 @@ def choice(name: str, value, valid: Sequence):
     return value
 
 
+def optional_names(name: str, value, what: str) -> tuple[str, ...] | None:
+    """None (the default set) or a non-empty list or tuple of strings (`what`: which names)."""
+    if value is None:
+        return None
+    if (
+        not isinstance(value, (list, tuple))
+        or not value
+        or not all(isinstance(n, str) for n in value)
+    ):
+        raise fail(name, value, f"None or a non-empty list of {what}")
+    return tuple(value)
+
+
 def seed(value, name: str = "seed") -> int | None:
     """None or a non-negative int (a bool is not a seed)."""
     if value is None:

@@ -187,6 +187,8 @@ def test_other_walkers_run_on_the_field(body):
         ({"observation": "camera"}, "observation"),
         ({"task_parameters": ["block_height", "stump_height"]}, "task_parameters"),
         ({"task_parameters": "roughness"}, "task_parameters"),
+        ({"task_parameters": []}, r"task_parameters=\[\]; valid: None or a non-empty list"),
+        ({"task_parameters": ["roughness", 3]}, "terrain parameter names"),
         ({"grid_spacing": 0.2}, r"grid_spacing=0\.2; valid: two spacings"),
         ({"grid_spacing": (0.2, 0.2, 0.2)}, "grid_spacing"),
         ({"grid_spacing": [[0.2, 0.2]]}, "grid_spacing"),

@@ -74,10 +74,11 @@ class ParkourEnv(TrackEnv):
         composition = ParkourComposition(
             input_space, lidars_type, end_on_death, water_clip, movable_creepers
         )
-        self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
         self._compose(
             composition,
-            self._make_body(body, planar, body_options),
+            body,
+            planar,
+            body_options,
             frame_skip,
             render_mode,
             dict(width=width, height=height, camera=camera, quality=quality),

@@ -59,11 +59,11 @@ class Terrain3DEnv(TrackEnv):
         quality: str = "fast",
         grid_spacing: tuple[float, float] = (CELL, ROW_CELL),
     ):
-        composition = Terrain3DComposition(task_parameters, observation, grid_spacing)
-        self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
         self._compose(
-            composition,
-            self._make_body(body, planar, body_options),
+            Terrain3DComposition(task_parameters, observation, grid_spacing),
+            body,
+            planar,
+            body_options,
             frame_skip,
             render_mode,
             dict(width=width, height=height, camera=camera, quality=quality),
@@ -77,13 +77,10 @@ class Terrain3DComposition:
     track = "terrain3d"
 
     def __init__(self, task_parameters, observation: str, spacing=(CELL, ROW_CELL)):
-        if task_parameters is not None and (
-            isinstance(task_parameters, str) or not isinstance(task_parameters, (list, tuple))
-        ):
-            raise validation.fail(
-                "task_parameters", task_parameters, "None or a list of terrain parameter names"
-            )
-        self.task_space = terrain3d_task_space(task_parameters)
+        names = validation.optional_names(
+            "task_parameters", task_parameters, "terrain parameter names"
+        )
+        self.task_space = terrain3d_task_space(names)
         self.observation = validation.choice("observation", observation, OBSERVATIONS)
         self.spacing = grid_spacing(spacing)
         self.profile = TERRAIN3D

@@ -47,8 +47,10 @@ class TrackComposition:
     ):
         self.track = track
         self.observation = validation.choice("observation", observation, OBSERVATIONS)
-        names = TRACKS[track].parameters if task_parameters is None else task_parameters
-        self.task_space = track_task_space(names)
+        names = validation.optional_names(
+            "task_parameters", task_parameters, "track parameter names"
+        )
+        self.task_space = track_task_space(TRACKS[track].parameters if names is None else names)
         self.profile = TRACKS[track].profile
 
     def check_buildable(self, task: dict) -> None:

@@ -77,29 +77,18 @@ class TrackEnv(gym.Env):
         observation: str = "lidar",
     ):
         validation.choice("track", track, list(TRACKS))
-        self._check_options(render_mode, width, height, camera, quality, frame_skip, body_options)
-        if task_parameters is not None and (
-            isinstance(task_parameters, str)
-            or not isinstance(task_parameters, (list, tuple))
-            or not task_parameters
-            or not all(isinstance(n, str) for n in task_parameters)
-        ):
-            raise validation.fail(
-                "task_parameters",
-                task_parameters,
-                "None or a non-empty list of track parameter names",
-            )
-        body = self._make_body(body, planar, body_options)
         self._compose(
             TrackComposition(track, task_parameters, observation),
             body,
+            planar,
+            body_options,
             frame_skip,
             render_mode,
             dict(width=width, height=height, camera=camera, quality=quality),
         )
 
     # ------------------------------------------------------------------ composition
-    def _check_options(self, render_mode, width, height, camera, quality, frame_skip, body_options):
+    def _check_options(self, render_mode, frame_skip, body_options, width, height, camera, quality):
         """The arguments every env takes, checked before anything is built."""
         validation.choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
         if render_mode == "human":
@@ -122,15 +111,19 @@ class TrackEnv(gym.Env):
             return make_body(body, planar=planar, **dict(body_options or {}))
         raise validation.fail("body", body, "a body name or an acl3d.bodies.Body")
 
-    def _compose(self, composition, body: Body, frame_skip, render_mode, render_args) -> None:
-        """Bind body x arena x rules (from `composition`) into one compiled model."""
-        self.body = body
+    def _compose(
+        self, composition, body, planar, body_options, frame_skip, render_mode, render_args
+    ) -> None:
+        """Check the arguments every env takes, make the body and bind body x arena x rules (from
+        `composition`) into one compiled model."""
+        self._check_options(render_mode, frame_skip, body_options, **render_args)
+        self.body = self._make_body(body, planar, body_options)
         self.composition = composition
         self.track = composition.track
         frame_skip = self.body.frame_skip if frame_skip is None else int(frame_skip)
         self.task_space: TaskSpace = composition.task_space
         self.frame_skip = frame_skip
-        self.arena = composition.build_arena(body)
+        self.arena = composition.build_arena(self.body)
         self.generator = self.arena.generator
         self.model, self.bound = self.arena.model, self.arena.bound
         self.model.opt.timestep = CONTROL_DT / frame_skip
