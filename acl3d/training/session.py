@@ -13,6 +13,7 @@ import re
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -31,6 +32,9 @@ from acl3d.training.evaluation import EvalResult, evaluate, make_predict
 from acl3d.training.run_dir import RunDir, read_state
 from acl3d.training.student_settings import student_params
 from acl3d.training.workers import env_keywords, make_env, make_vec_env
+
+if TYPE_CHECKING:
+    from acl3d.teachers.controller import TeacherController
 
 
 def build_controller(config: TrainConfig, task_space, profile=None):
@@ -129,6 +133,26 @@ def check_test_tasks(env, tasks, task_names: list[str]) -> None:
             raise ValueError(f"test set: task {i} {shown} cannot be played: {why}") from None
 
 
+def probe_run(
+    config: TrainConfig, check_spaces: bool = False
+) -> tuple[list[str], TeacherController]:
+    """(flat task names, teacher controller) of a run, from one env of it: the env's settings,
+    the teacher's bounds and every test task checked before the run writes anything;
+    `check_spaces`: also the SB3 algorithm against the env's action space."""
+    env = probe_env(config)
+    try:
+        if check_spaces:
+            students.check_action_space(config.student, env.observation_space, env.action_space)
+        task_space, profile = probe_task_space(config, env)
+        task_names = task_space.flat_names()
+        with np.errstate(over="ignore"):  # a test task beyond float32 is refused just below
+            controller = build_controller(config, task_space, profile)
+        check_test_tasks(env, controller.test_tasks(), task_names)
+    finally:
+        env.close()
+    return task_names, controller
+
+
 def verify_checkpoint(folder: Path, config: TrainConfig) -> None:
     """Check every file of a checkpoint against the size and SHA-256 its manifest recorded
     before any is used: `DamagedCheckpoint` names the first missing, truncated, corrupt or
@@ -166,16 +190,7 @@ class Session:
 
     def __init__(self, config: TrainConfig, run: RunDir, resume_from: Path | None = None):
         self.config, self.run, self.resume_from = config, run, resume_from
-        env = probe_env(config)
-        try:
-            students.check_action_space(config.student, env.observation_space, env.action_space)
-            task_space, profile = probe_task_space(config, env)
-            self.task_names = task_space.flat_names()
-            with np.errstate(over="ignore"):  # a test task beyond float32 is refused just below
-                self.controller = build_controller(config, task_space, profile)
-            check_test_tasks(env, self.controller.test_tasks(), self.task_names)
-        finally:
-            env.close()
+        self.task_names, self.controller = probe_run(config, check_spaces=True)
         self.params = student_params(config)
         self.exclude_exploratory = excludes_exploratory(config)
         self.train_env = self.eval_env = self.curriculum_env = self.vecnorm = None

@@ -40,7 +40,7 @@ from acl3d.training.config import (
     uses_many_worlds,
 )
 from acl3d.training.run_dir import RunDir
-from acl3d.training.session import build_controller, check_test_tasks, probe_env, probe_task_space
+from acl3d.training.session import probe_run
 from acl3d.training.student_settings import student_params
 from acl3d.training.torch_student import rsl_ppo
 from acl3d.training.torch_student.curriculum_rounds import CurriculumRounds, reserve_for
@@ -56,14 +56,7 @@ class TorchRun:
 
     def __init__(self, config: TrainConfig, run: RunDir, resume_from: Path | None):
         self.config, self.run, self.resume_from = config, run, resume_from
-        env = probe_env(config)
-        try:
-            task_space, profile = probe_task_space(config, env)
-            self.task_names = task_space.flat_names()
-            self.controller = build_controller(config, task_space, profile)
-            check_test_tasks(env, self.controller.test_tasks(), self.task_names)
-        finally:
-            env.close()
+        self.task_names, self.controller = probe_run(config)
         self.params = student_params(config)
         self.exclude_exploratory = excludes_exploratory(config)
         self.device = torch.device("cpu" if config.device == "auto" else config.device)
