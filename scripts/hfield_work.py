@@ -3,6 +3,7 @@
     python scripts/hfield_work.py                          # 3D Terrain, 256 worlds
     python scripts/hfield_work.py --worlds 128 --ages 0 40 80 120 160 --tiles 2 1
     python scripts/hfield_work.py --env stump-tracks --tiles   # another family, no tiles
+    python scripts/hfield_work.py --worlds 64 --tiles --by-geom  # which geoms send the prisms
 
 MuJoCo Warp collides a geom with a heightfield in one thread: it visits every prism under the
 geom's bounding box (a cheap height test each) and runs GJK on those that reach the geom's
@@ -19,7 +20,8 @@ MuJoCo's kinematics on each world's qpos and its own heights):
   is cut into `--tiles` metres along x, as `bench_terrain3d_collision.py`'s tile variants):
   the prisms visited (the field as tall as the compiled one, and were each world's copy only as
   tall as its own ground) and those given to GJK: their mean, 99th percentile and maximum; and
-  the heightfield kernel's time on Warp's CPU device.
+  the heightfield kernel's time on Warp's CPU device;
+* with `--by-geom`, the prisms each body geom sends to GJK (a world's mean, and its worst pair).
 """
 
 from __future__ import annotations
@@ -36,11 +38,11 @@ from acl3d.cli.option_values import key_values
 
 
 def pair_work(env, tile_cols: int | None) -> np.ndarray:
-    """(pairs, 3): prisms visited and prisms given to GJK by each (geom, field or tile) pair
+    """(pairs, 4): prisms visited and prisms given to GJK by each (geom, field or tile) pair
     of every world, as `ccd_hfield` bounds them (the geom's box in the field's frame, the prisms
     with a top point at or above the geom's lowest point), the field as tall as the compiled one;
     then the prisms visited were each field (or tile) only as tall as its own highest point
-    (none where the geom is above it)."""
+    (none where the geom is above it); then the pair's geom."""
     model, sim = env.template.model, env.sim
     data = mujoco.MjData(model)
     field = model.geom("terrain")
@@ -78,7 +80,7 @@ def pair_work(env, tile_cols: int | None) -> np.ndarray:
                 visited = int(on.sum()) * (rmax - rmin) * 2
                 span = slice(t * per_tile, (t + 1) * per_tile + 1)
                 below = heights[w, :, span].max() < lo[2]
-                work.append((visited, int(reaching[on].sum()), 0 if below else visited))
+                work.append((visited, int(reaching[on].sum()), 0 if below else visited, g))
     return np.array(work)
 
 
@@ -133,7 +135,7 @@ def measure(env, tiles: list[float]) -> tuple[float, float, dict]:
     return 1000 * hfield / 2, hfield / sum(times.values()), work
 
 
-def report(label: str, env, measures: list[tuple[float, float, dict]]) -> None:
+def report(label: str, env, measures: list[tuple[float, float, dict]], by_geom: bool) -> None:
     """Print `measure`s of one kind of state (several: their mean kernel time, pairs pooled)."""
     ms, share = np.mean([m[0] for m in measures]), np.mean([m[1] for m in measures])
     print(f"{label}: heightfield kernel {ms:.1f} ms a step ({share:.0%} of the kernels)")
@@ -147,6 +149,12 @@ def report(label: str, env, measures: list[tuple[float, float, dict]]) -> None:
             values = work[:, column]
             print(f"    {what:>34}: mean {values.mean():6.1f}  p99 "
                   f"{np.percentile(values, 99):5.0f}  max {values.max():5d}")  # fmt: skip
+        if by_geom and tile is None:
+            model = env.template.model
+            for g in np.unique(work[:, 3]):
+                gjk = work[work[:, 3] == g, 1]
+                print(f"    {model.geom(int(g)).name:>34}: GJK {gjk.sum() / worlds:5.1f} a world, "
+                      f"worst pair {gjk.max():4d}")  # fmt: skip
 
 
 def main() -> None:
@@ -157,6 +165,7 @@ def main() -> None:
     p.add_argument("--env-steps", type=int, default=300, help="env steps to its steady state")
     p.add_argument("--snapshots", type=int, default=5, help="env states measured, 20 steps apart")
     p.add_argument("--tiles", type=float, nargs="*", default=[2.0, 1.0], help="tile lengths, m")
+    p.add_argument("--by-geom", action="store_true", help="prisms to GJK by body geom")
     a = p.parse_args()
     body = a.body or ("big_quadru" if a.env == "terrain3d" else None)
     env_kwargs = key_values(a.env_kwarg, "--env-kwarg")
@@ -171,7 +180,7 @@ def main() -> None:
             ctrl.copy_(torch.rand(ctrl.shape, generator=g) * 2 - 1)
             env.sim.step()
         age = target
-        report(f"raw physics after {age} steps", env, [measure(env, a.tiles)])
+        report(f"raw physics after {age} steps", env, [measure(env, a.tiles)], a.by_geom)
     env.reset(seed=0)
     measures, ages = [], []
     for step in range(a.env_steps + 20 * (a.snapshots - 1) + 1):
@@ -180,7 +189,7 @@ def main() -> None:
             ages.append(float(env.elapsed.float().mean()))
         env.step(torch.rand((env.num_envs, env.action_size), generator=g) * 2 - 1)
     report(f"env, {a.snapshots} states from step {a.env_steps} (episodes {np.mean(ages):.0f} "
-           "steps old on average)", env, measures)  # fmt: skip
+           "steps old on average)", env, measures, a.by_geom)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -97,6 +97,9 @@ def main() -> None:
     p.add_argument("--constraint-rows", type=int, default=0, help="0: MuJoCo Warp's estimate")
     p.add_argument("--contact-slots", type=int, default=0, help="0: MuJoCo Warp's estimate")
     p.add_argument("--top", type=int, default=15, help="kernels listed")
+    p.add_argument(
+        "--ccd-tolerance", type=float, help="MuJoCo's opt.ccd_tolerance for the timed steps"
+    )
     a = p.parse_args()
     env_kwargs = key_values(a.env_kwarg, "--env-kwarg")
     env = make_env(
@@ -104,6 +107,8 @@ def main() -> None:
         env_kwargs,
     )  # fmt: skip
     kernel_times(env.sim, a.warmup)  # loads every kernel module; the bodies fold to the ground
+    if a.ccd_tolerance is not None:  # after the warm-up: the same states, timed at another value
+        env.sim.m.opt.ccd_tolerance.fill_(a.ccd_tolerance)
     times = kernel_times(env.sim, a.steps)
     by_name: dict[str, float] = defaultdict(float)
     for name, seconds in times.items():
@@ -114,7 +119,8 @@ def main() -> None:
     print(
         f"{a.env}, {a.body or 'its default body'}{options}, {a.worlds} worlds on {a.device}, "
         f"{env.sim.constraint_rows} constraint rows and {env.sim.contact_slots} contact slots "
-        f"a world, {a.steps} steps of {env.sim.nstep} substeps"
+        f"a world, ccd_tolerance {env.sim.m.opt.ccd_tolerance.numpy()[0]:g}, {a.steps} steps of "
+        f"{env.sim.nstep} substeps after {a.warmup}"
     )
     print(f"kernel time per step {1000 * total / a.steps:.2f} ms ({len(by_name)} kernels)")
     print(f"heightfield collision ({HFIELD_KERNEL}*): {hfield / total:.1%}")
