@@ -95,8 +95,8 @@ def test_v2_specs_pass_the_checks_a_run_makes(name):
 
 def test_stump_rsl_10m_is_stump_rsl_at_five_times_the_budget_with_the_noise_floor():
     """The same task space, test grid, body, worlds, student and teachers as pinned in
-    stump-rsl, and Robust PLR, Covar-GMM and RIAC as pinned in stump-v1; only the budget, its evaluation and
-    sampling cadence and the floor differ."""
+    stump-rsl, and Robust PLR, Covar-GMM and RIAC as pinned in stump-v1; only the budget, its
+    evaluation and sampling cadence and the floor differ."""
     short, long = load_spec("stump-rsl"), load_spec("stump-rsl-10m")
     changed = {"steps": 10_000_000, "eval_every": 2_000_000, "periodical_samples_every": 1_000_000}
     assert {k: long.base[k] for k in changed} == changed
