@@ -41,6 +41,7 @@ PROTOCOLS = {
         "robust-plr",
         "covar-gmm",
         "riac",
+        "adr",
     },
 }
 
@@ -95,8 +96,8 @@ def test_v2_specs_pass_the_checks_a_run_makes(name):
 
 def test_stump_rsl_10m_is_stump_rsl_at_five_times_the_budget_with_the_noise_floor():
     """The same task space, test grid, body, worlds, student and teachers as pinned in
-    stump-rsl, and Robust PLR, Covar-GMM and RIAC as pinned in stump-v1; only the budget, its
-    evaluation and sampling cadence and the floor differ."""
+    stump-rsl, and Robust PLR, Covar-GMM, RIAC and ADR as pinned in stump-v1; only the budget,
+    its evaluation and sampling cadence and the floor differ."""
     short, long = load_spec("stump-rsl"), load_spec("stump-rsl-10m")
     changed = {"steps": 10_000_000, "eval_every": 2_000_000, "periodical_samples_every": 1_000_000}
     assert {k: long.base[k] for k in changed} == changed
@@ -106,7 +107,7 @@ def test_stump_rsl_10m_is_stump_rsl_at_five_times_the_budget_with_the_noise_floo
     params = dict(short.base["student_params"], min_noise_std=0.3)
     assert long.base["student_params"] == params
     v1 = load_spec("stump-v1").grid["teacher"]
-    added = {name: v1[name] for name in ("robust-plr", "covar-gmm", "riac")}
+    added = {name: v1[name] for name in ("robust-plr", "covar-gmm", "riac", "adr")}
     assert long.grid["teacher"] == {**short.grid["teacher"], **added}
     assert list(long.seeds) == list(range(8))
     check_runs(long.expand())
