@@ -43,6 +43,8 @@ class TensorTerrain3D:
         device: where the fields are built.
     """
 
+    DRAWS = ("sign", "lattice", "normal", "uniform")  # the keys of `draws`, in draw order
+
     def __init__(self, generator: Terrain3DGenerator, names: tuple[str, ...], device):
         g, self.device = generator.grid, torch.device(device)
         self.names = tuple(names)
