@@ -36,7 +36,7 @@ class Draws:
 @pytest.mark.parametrize(
     "parameters, spacing",
     [
-        (None, (0.1, 0.2)),
+        (None, (0.1, 0.5)),
         (("block_height", "hill_slope", "roughness"), (0.1, 0.2)),
         (None, (0.25, 0.5)),  # a coarser grid (the env's `grid_spacing`)
     ],

@@ -40,8 +40,9 @@ class Terrain3DEnv(TrackEnv):
         observation: the terrain sensor: "height_scan" (63 heights around the body in its
             heading frame, `acl3d.envs.height_scan`) or "lidar" (10 sagittal rays).
         grid_spacing: metres between the heightfield's points, along x then across (default
-            (0.1, 0.2)). A coarser grid collides faster (on a GPU 1.5x at (0.2, 0.2), where
-            collision is most of a step) and turns blocks into wedges: docs/terrain3d.md.
+            (0.1, 0.5)). A coarser grid collides faster (on a GPU, where collision is most of a
+            step) and turns blocks into wedges; (0.1, 0.2) keeps narrow blocks' sides steep at
+            ~0.7x the GPU speed: docs/terrain3d.md.
     """
 
     def __init__(
