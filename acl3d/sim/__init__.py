@@ -9,5 +9,9 @@ whole batches with no per-world Python:
   every backend implements;
 * `acl3d.sim.warp_backend`: MuJoCo Warp (CUDA, or Warp's CPU device for tests), needs the `[gpu]`
   extra;
-* `acl3d.sim.cpu_backend`: MuJoCo's native batch (`mujoco.batch`) on the CPU's threads.
+* `acl3d.sim.graphed`: torch work replayed as CUDA graphs (a reset's small operations as one
+  launch).
+
+The CPU path steps its sub-envs' own models on MuJoCo's native batch (`mujoco.batch`, C
+threads): `acl3d.envs.physics.BatchPhysics`, behind `acl3d.envs.batched`.
 """
