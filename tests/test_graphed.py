@@ -24,6 +24,12 @@ def test_on_the_cpu_it_is_the_function_itself():
     assert calls == [a] and torch.equal(out, a + 1)
 
 
+def test_inputs_of_other_row_counts_are_refused():
+    call = GraphedCall(_rowwise, torch.device("cpu"))
+    with pytest.raises(ValueError, match=r"inputs: rows \[3, 2\]"):
+        call(torch.zeros((3, 2)), torch.zeros((2, 4)))
+
+
 @pytest.mark.parametrize("name, value", [("rows_step", -1), ("max_rows", 0)])
 def test_bad_arguments_are_named(name, value):
     with pytest.raises(ValueError, match=name):

@@ -42,12 +42,15 @@ class GraphedCall:
 
     def __call__(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         k = inputs[0].shape[0]
+        rows = [t.shape[0] for t in inputs]
+        if rows != [k] * len(inputs):
+            raise ValueError(f"inputs: rows {rows}; every input needs the same leading dimension")
         if self.device.type != "cuda" or (self.max_rows is not None and k > self.max_rows):
             return tuple(self.fn(*inputs))
-        rows = -(-k // self.rows_step) * self.rows_step if self.rows_step else k
-        key = (rows, *((t.shape[1:], t.dtype) for t in inputs))
+        padded = -(-k // self.rows_step) * self.rows_step if self.rows_step else k
+        key = (padded, *((t.shape[1:], t.dtype) for t in inputs))
         if key not in self._graphs:
-            self._graphs[key] = self._capture(inputs, rows)
+            self._graphs[key] = self._capture(inputs, padded)
         buffers, outputs, graph = self._graphs[key]
         for buffer, t in zip(buffers, inputs):
             buffer[:k].copy_(t)
