@@ -121,7 +121,13 @@ def reset_share(env: ManyWorlds, steps: int) -> float:
         return out
 
     env._reset_worlds = timed
-    g = torch.Generator(device=env.device).manual_seed(3)
+    total = random_steps(env, steps, torch.Generator(device=env.device).manual_seed(3)) * steps
+    env._reset_worlds = reset
+    return spent[0] / total
+
+
+def random_steps(env: ManyWorlds, steps: int, g: torch.Generator) -> float:
+    """Seconds a step over `steps` env steps on random actions drawn from `g` (synchronised)."""
     _sync(env.device)
     t0 = time.perf_counter()
     for _ in range(steps):
@@ -129,9 +135,7 @@ def reset_share(env: ManyWorlds, steps: int) -> float:
             torch.rand((env.num_envs, env.action_size), generator=g, device=env.device) * 2 - 1
         )
     _sync(env.device)
-    total = time.perf_counter() - t0
-    env._reset_worlds = reset
-    return spent[0] / total
+    return (time.perf_counter() - t0) / steps
 
 
 def first_step_seconds(device: str, n: int, name: str) -> float:

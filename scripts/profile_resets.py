@@ -18,7 +18,7 @@ from collections import defaultdict
 
 import numpy as np
 import torch
-from bench_gpu import _sync, add_env_arguments, make_env
+from bench_gpu import _sync, add_env_arguments, make_env, random_steps
 from torch.profiler import ProfilerActivity, profile
 
 from acl3d.cli.option_values import key_values
@@ -73,24 +73,13 @@ def main() -> None:
         a.worlds, a.device, a.env, body, env_kwargs=key_values(a.env_kwarg, "--env-kwarg")
     )
     g = torch.Generator(device=env.device).manual_seed(2)
-
-    def steps(n: int) -> float:
-        _sync(env.device)
-        t0 = time.perf_counter()
-        for _ in range(n):
-            env.step(
-                torch.rand((a.worlds, env.action_size), generator=g, device=env.device) * 2 - 1
-            )
-        _sync(env.device)
-        return (time.perf_counter() - t0) / n
-
-    steps(a.steps)
-    plain = steps(a.steps)
+    random_steps(env, a.steps, g)
+    plain = random_steps(env, a.steps, g)
     print(f"{a.env}, {a.worlds} worlds on {a.device}: a step {plain * 1e3:.2f} ms untimed "
           f"({a.worlds / plain:,.0f} env steps/s)")  # fmt: skip
     spent: dict = defaultdict(float)
     originals = [(obj, name, timed(obj, name, spent, env.device)) for obj, name, _ in stages(env)]
-    total = steps(a.steps)
+    total = random_steps(env, a.steps, g)
     print(f"a step with every stage timed: {total * 1e3:.2f} ms; per step:")
     for obj, name, label in stages(env):
         print(f"  {label:28s} {spent[name, id(obj)] / a.steps * 1e3:7.3f} ms")
