@@ -32,6 +32,7 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 import torch
 
@@ -107,23 +108,30 @@ def env_rate(env: ManyWorlds, steps: int, warmup: int) -> tuple[float, float]:
     return env.num_envs * steps / (time.perf_counter() - t0), finished / steps
 
 
-def reset_share(env: ManyWorlds, steps: int) -> float:
-    """Share of the env's step time spent in batched resets (synchronised timing)."""
-    spent = [0.0]
-    reset = env._reset_worlds
+def time_calls(obj, name: str, device, spent: dict, key) -> Callable[[], None]:
+    """Add the time of every call of obj.name (device synchronised around it) to spent[key];
+    returns the function that puts the original back."""
+    original, shadowed = getattr(obj, name), name in vars(obj)
 
-    def timed(*args):
-        _sync(env.device)
+    def timed(*args, **kwargs):
+        _sync(device)
         t0 = time.perf_counter()
-        out = reset(*args)
-        _sync(env.device)
-        spent[0] += time.perf_counter() - t0
+        out = original(*args, **kwargs)
+        _sync(device)
+        spent[key] = spent.get(key, 0.0) + time.perf_counter() - t0
         return out
 
-    env._reset_worlds = timed
+    setattr(obj, name, timed)
+    return (lambda: setattr(obj, name, original)) if shadowed else (lambda: delattr(obj, name))
+
+
+def reset_share(env: ManyWorlds, steps: int) -> float:
+    """Share of the env's step time spent in batched resets (synchronised timing)."""
+    spent: dict = {}
+    restore = time_calls(env, "_reset_worlds", env.device, spent, "resets")
     total = random_steps(env, steps, torch.Generator(device=env.device).manual_seed(3)) * steps
-    env._reset_worlds = reset
-    return spent[0] / total
+    restore()
+    return spent.get("resets", 0.0) / total
 
 
 def random_steps(env: ManyWorlds, steps: int, g: torch.Generator) -> float:

@@ -13,12 +13,10 @@ worlds (torch's profiler). The env runs the bench task of `bench_gpu.py`, random
 from __future__ import annotations
 
 import argparse
-import time
-from collections import defaultdict
 
 import numpy as np
 import torch
-from bench_gpu import _sync, add_env_arguments, make_env, random_steps
+from bench_gpu import _sync, add_env_arguments, make_env, random_steps, time_calls
 from torch.profiler import ProfilerActivity, profile
 
 from acl3d.cli.option_values import key_values
@@ -44,22 +42,6 @@ def stages(env) -> list[tuple[object, str, str]]:
     ]
 
 
-def timed(obj, name: str, spent: dict, device):
-    """Wrap obj.name (an instance attribute) to add its time to spent; returns the original."""
-    method = getattr(obj, name)
-
-    def run(*args, **kwargs):
-        _sync(device)
-        t0 = time.perf_counter()
-        out = method(*args, **kwargs)
-        _sync(device)
-        spent[name, id(obj)] += time.perf_counter() - t0
-        return out
-
-    setattr(obj, name, run)
-    return method
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_env_arguments(p, "terrain3d", "big_quadru")
@@ -77,14 +59,14 @@ def main() -> None:
     plain = random_steps(env, a.steps, g)
     print(f"{a.env}, {a.worlds} worlds on {a.device}: a step {plain * 1e3:.2f} ms untimed "
           f"({a.worlds / plain:,.0f} env steps/s)")  # fmt: skip
-    spent: dict = defaultdict(float)
-    originals = [(obj, name, timed(obj, name, spent, env.device)) for obj, name, _ in stages(env)]
+    spent: dict = {}
+    restores = [time_calls(obj, n, env.device, spent, (n, id(obj))) for obj, n, _ in stages(env)]
     total = random_steps(env, a.steps, g)
     print(f"a step with every stage timed: {total * 1e3:.2f} ms; per step:")
     for obj, name, label in stages(env):
-        print(f"  {label:28s} {spent[name, id(obj)] / a.steps * 1e3:7.3f} ms")
-    for obj, name, original in reversed(originals):
-        setattr(obj, name, original)
+        print(f"  {label:28s} {spent.get((name, id(obj)), 0.0) / a.steps * 1e3:7.3f} ms")
+    for restore in reversed(restores):
+        restore()
     ids = np.sort(np.random.default_rng(0).choice(a.worlds, min(a.resets, a.worlds), replace=False))
     activities = [ProfilerActivity.CPU] + (
         [ProfilerActivity.CUDA] if env.device.type == "cuda" else []
